@@ -1,0 +1,227 @@
+"""The tracker: OFF -> SYNCING -> SYNCED -> DESYNCING -> OFF for one robot on one master.
+
+Sources: algorithm page (states "Tracking process", "Full Synchronization follow the master",
+"Stopping") and the overview page ("Absolute/Relative Approach", Functional Changes 2 and 5,
+IMFS values).
+
+Time: the tracker counts samples.  ``update(master)`` is called once per sample period T with
+the master's state *at the time of the setpoint being computed* (sample k); it returns the
+setpoint for sample k.  The shells predict the master to that time (see ``estimator``).
+
+Channels: translation (3-D, vector-norm limits ``sync_trans``) and rotation (one angle about
+the tool axis, ``sync_rot``) are approached independently by the same planner; the tracker is
+SYNCED when both are.  A synchronised channel copies the master (all derivatives).
+
+Modes (``<robot>.slave``): 3 absolute — the robot goes onto the master; 5 relative — the
+robot keeps the offset it had to the master at engage (the master shifted by
+robot(k0-1) - master(k0-1), the master extrapolated back one sample to the robot's time).
+
+Errors (each starts the de-sync on the path and is reported until the next engage): a master
+over the moving frame's VelocityMax/AccelerationMax (checked in SYNCING and SYNCED),
+over-oscillation, approach timeout.
+
+In OFF the setpoint continues the robot state last given (``set_robot_state`` or the initial
+state) at constant acceleration: another motion source owns the robot then.
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+
+from .desync import Desync
+from .oscillation import OscillationMonitor
+from .planner import ChannelPlanner, planner_factory
+from .types import (Imfs, Mode, MotionState, TrackError, TrackerOutput, TrackerParams,
+                    TrackState)
+from .vec import Vec
+
+_IMFS = {TrackState.OFF: Imfs.NOT_SYNCHRONIZED, TrackState.SYNCING: Imfs.NOT_SYNCHRONIZED,
+         TrackState.SYNCED: Imfs.SYNCHRONIZED, TrackState.DESYNCING: Imfs.DESYNCING}
+
+
+def _norm(v: Vec) -> float:
+    s = 0.0
+    for x in v:
+        s += x * x
+    return math.sqrt(s)
+
+
+class Tracker:
+    """One tracker.  ``engage()`` / ``disengage()`` take effect at the next ``update()``."""
+
+    def __init__(self, params: TrackerParams | None = None,
+                 initial: MotionState | None = None) -> None:
+        self.params = params = params if params is not None else TrackerParams()
+        self.limits = params.effective()
+        self.T = params.sample_time_s
+        factory = planner_factory(params.planner)
+        self._planners: tuple[ChannelPlanner, ChannelPlanner] = (
+            factory(self.limits.sync_trans, params), factory(self.limits.sync_rot, params))
+        window = max(1, round(params.max_flops_time_s / self.T))
+        self._osc = (
+            OscillationMonitor(params.max_flops, window,
+                               params.filter_factor * self.limits.sync_trans.acc * self.T),
+            OscillationMonitor(params.max_flops, window,
+                               params.filter_factor * self.limits.sync_rot.acc * self.T))
+        self._timeout_samples = max(1, round(params.approach_timeout_s / self.T))
+        self.sample = 0
+        self.setpoint = initial if initial is not None else MotionState()
+        self.state = TrackState.OFF
+        self.error = TrackError.NONE
+        self.mode = params.mode
+        self._request: str | None = None
+        self._request_mode: Mode | None = None
+        self._offset_pos: Vec = (0.0, 0.0, 0.0)
+        self._offset_ang = 0.0
+        self._synced = [False, False]
+        self._approach_start = 0
+        self._desync: tuple[Desync, Desync] | None = None
+        self._desync_start = 0
+        #: sample at which the last approach completed (None while not yet)
+        self.synced_at: int | None = None
+
+    # -- commands -------------------------------------------------------------------
+    def engage(self, mode: Mode | int | None = None) -> None:
+        """Start synchronising at the next update (``mode`` 3 absolute / 5 relative)."""
+        if mode is not None:
+            m = Mode(mode)
+            if m == Mode.OFF:
+                self.disengage()
+                return
+            self._request_mode = m
+        self._request = "engage"
+
+    def disengage(self) -> None:
+        """Start the de-sync at the next update (``slave = 0``)."""
+        self._request = "disengage"
+
+    def set_robot_state(self, state: MotionState) -> None:
+        """Set the robot state while OFF (the setpoint another motion source produced)."""
+        if self.state != TrackState.OFF:
+            raise RuntimeError("set_robot_state is only allowed while OFF")
+        self.setpoint = state
+
+    @property
+    def imfs(self) -> Imfs:
+        return _IMFS[self.state]
+
+    def snapshot(self) -> "Tracker":
+        """A deep copy of the whole tracker (for FMU state save/restore and what-if runs)."""
+        return copy.deepcopy(self)
+
+    # -- helpers --------------------------------------------------------------------
+    def _shifted(self, m: MotionState) -> MotionState:
+        if self.mode != Mode.RELATIVE:
+            return m
+        o = self._offset_pos
+        p = m.pos
+        return MotionState((p[0] + o[0], p[1] + o[1], p[2] + o[2]), m.vel, m.acc,
+                           m.ang + self._offset_ang, m.ang_vel, m.ang_acc)
+
+    def _start_sync(self, master: MotionState) -> None:
+        self.mode = self._request_mode or self.params.mode
+        sp = self.setpoint
+        if self.mode == Mode.RELATIVE:
+            back = master.extrapolated(-self.T)
+            self._offset_pos = tuple(s - m for s, m in zip(sp.pos, back.pos))
+            self._offset_ang = sp.ang - back.ang
+        else:
+            self._offset_pos = (0.0, 0.0, 0.0)
+            self._offset_ang = 0.0
+        self._planners[0].reset(sp.pos, sp.vel, sp.acc)
+        self._planners[1].reset((sp.ang,), (sp.ang_vel,), (sp.ang_acc,))
+        for m in self._osc:
+            m.reset()
+        self._synced = [False, False]
+        self._approach_start = self.sample
+        self.synced_at = None
+        self.error = TrackError.NONE
+        self._desync = None
+        self.state = TrackState.SYNCING
+
+    def _start_desync(self, start_sample: int) -> None:
+        """Stop on the path from the setpoint of ``start_sample`` (the last one computed)."""
+        sp = self.setpoint
+        lim = self.limits
+        cur = self.params.desync_from_current_acceleration
+        self._desync = (
+            Desync.linear(sp.pos, sp.vel, sp.acc, lim.desync_trans.acc, lim.desync_trans.jerk, cur),
+            Desync.linear((sp.ang,), (sp.ang_vel,), (sp.ang_acc,), lim.desync_rot.acc,
+                          lim.desync_rot.jerk, cur))
+        self._desync_start = start_sample
+        self.state = TrackState.DESYNCING
+
+    def _check_master(self, m: MotionState) -> TrackError:
+        mt, mr = self.params.master_max_trans, self.params.master_max_rot
+        if _norm(m.vel) > mt.vel or abs(m.ang_vel) > mr.vel:
+            return TrackError.MASTER_VELOCITY
+        if _norm(m.acc) > mt.acc or abs(m.ang_acc) > mr.acc:
+            return TrackError.MASTER_ACCELERATION
+        return TrackError.NONE
+
+    # -- the cyclic call ------------------------------------------------------------
+    def update(self, master: MotionState) -> TrackerOutput:
+        """Compute the setpoint of the next sample from the master's state at that sample."""
+        request, self._request = self._request, None
+        if request == "engage" and self.state in (TrackState.OFF, TrackState.DESYNCING):
+            self._start_sync(master)
+        elif request == "disengage" and self.state in (TrackState.SYNCING, TrackState.SYNCED):
+            self._start_desync(self.sample)
+        self.sample += 1
+        k = self.sample
+        state = self.state
+        synced_now = False
+
+        if state in (TrackState.SYNCING, TrackState.SYNCED):
+            err = self._check_master(master)
+            if err:
+                self.error = err
+                self._start_desync(k - 1)
+                state = self.state
+
+        if state == TrackState.SYNCING:
+            m = self._shifted(master)
+            pl_t, pl_r = self._planners
+            if self._synced[0]:
+                pos, vel, acc = m.pos, m.vel, m.acc
+            else:
+                pos, vel, acc, ok = pl_t.step(m.pos, m.vel, m.acc)
+                self._synced[0] = ok
+                if not ok and self._osc[0].update(
+                        k, tuple([a - b for a, b in zip(m.vel, vel)])):
+                    self.error = TrackError.OVER_OSCILLATION
+            if self._synced[1]:
+                ang, ang_vel, ang_acc = m.ang, m.ang_vel, m.ang_acc
+            else:
+                (ang,), (ang_vel,), (ang_acc,), ok = pl_r.step(
+                    (m.ang,), (m.ang_vel,), (m.ang_acc,))
+                self._synced[1] = ok
+                if not ok and self._osc[1].update(k, (m.ang_vel - ang_vel,)):
+                    self.error = TrackError.OVER_OSCILLATION
+            self.setpoint = MotionState(tuple(pos), tuple(vel), tuple(acc), ang, ang_vel, ang_acc)
+            if self._synced[0] and self._synced[1]:
+                self.state = TrackState.SYNCED
+                self.synced_at = k
+                synced_now = True
+            elif self.error == TrackError.NONE and k - self._approach_start >= self._timeout_samples:
+                self.error = TrackError.APPROACH_TIMEOUT
+            if self.error and self.state == TrackState.SYNCING:
+                self._start_desync(k)
+        elif state == TrackState.SYNCED:
+            self.setpoint = self._shifted(master)
+        elif state == TrackState.DESYNCING:
+            t = (k - self._desync_start) * self.T
+            tr, rot = self._desync
+            pos, vel, acc = tr.state(t)
+            (ang,), (ang_vel,), (ang_acc,) = rot.state(t)
+            self.setpoint = MotionState(pos, vel, acc, ang, ang_vel, ang_acc)
+            if tr.finished(t) and rot.finished(t):
+                self.state = TrackState.OFF
+                self._desync = None
+        else:  # OFF: the robot continues its own motion
+            self.setpoint = self.setpoint.extrapolated(self.T)
+
+        return TrackerOutput(self.setpoint, self.state, _IMFS[self.state], self.error, k,
+                             synced_now)
+

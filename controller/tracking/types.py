@@ -1,0 +1,280 @@
+"""Value types of the tracking core: limits, parameters, master/robot states, outputs.
+
+Units: translation in mm, mm/s, mm/s^2, mm/s^3; rotation (one angle about the tool
+axis) in deg, deg/s, deg/s^2, deg/s^3; time in s.  All types are immutable.
+
+Source: seeds/tracking-algorithm.txt (the algorithm page) and the "Tracking Process" /
+"Functional Changes" parts of seeds/conveyor-tracking.txt (the overview page).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+from enum import IntEnum
+
+from ..errors import ParameterError
+
+Vec3 = tuple[float, float, float]
+ZERO3: Vec3 = (0.0, 0.0, 0.0)
+
+
+class TrackState(IntEnum):
+    """Tracker state (overview page, "Tracking Process"; algorithm page state machine)."""
+
+    OFF = 0
+    SYNCING = 1  #: approach ("Tracking process" on the algorithm page)
+    SYNCED = 2  #: full synchronisation: follow the master, all derivatives copied
+    DESYNCING = 3  #: stopping on the path
+
+
+class Mode(IntEnum):
+    """``<robot>.slave`` values (overview page): 0 off, 3 absolute, 5 relative approach."""
+
+    OFF = 0
+    ABSOLUTE = 3
+    RELATIVE = 5
+
+
+class Imfs(IntEnum):
+    """IsMovingFrameSynchronized (overview page, "Functionality Changes")."""
+
+    NOT_SYNCHRONIZED = 0  #: off, or approaching but not yet synchronised
+    SYNCHRONIZED = 1  #: following the moving frame directly
+    DESYNCING = -1  #: de-syncing from the moving frame
+    HANDOFF = -2  #: de-syncing from one frame while catching another (conveyor model)
+
+
+class TrackError(IntEnum):
+    """Error outcomes of the tracker.  Every error starts the de-sync (stop on the path)."""
+
+    NONE = 0
+    MASTER_VELOCITY = 1  #: master velocity above the moving frame's VelocityMax
+    MASTER_ACCELERATION = 2  #: master acceleration above the moving frame's AccelerationMax
+    OVER_OSCILLATION = 3  #: MOT_MASTER_OSC: sustained oscillation during the approach
+    APPROACH_TIMEOUT = 4  #: not synchronised within ``approach_timeout_s``
+    ITEM_MISSED = 5  #: softMC error 30238 "Item missed" (conveyor model)
+    MASTER_LOST = 6  #: master samples stopped arriving (controller shell)
+
+
+@dataclass(frozen=True, slots=True)
+class Limits:
+    """Velocity/acceleration/jerk bounds of one channel (vector-norm limits).
+
+    Units: mm/s, mm/s^2, mm/s^3 for translation; deg/s, deg/s^2, deg/s^3 for rotation.
+    """
+
+    vel: float
+    acc: float
+    jerk: float
+
+    def __post_init__(self) -> None:
+        for name in ("vel", "acc", "jerk"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+                raise ParameterError(f"limit {name} (={value!r}) must be a finite number > 0")
+
+    def scaled(self, vel: float = 1.0, acc: float = 1.0, jerk: float = 1.0) -> "Limits":
+        """These limits with each bound multiplied by a factor."""
+        return Limits(self.vel * vel, self.acc * acc, self.jerk * jerk)
+
+    def capped(self, other: "Limits") -> "Limits":
+        """Component-wise minimum with ``other``."""
+        return Limits(min(self.vel, other.vel), min(self.acc, other.acc),
+                      min(self.jerk, other.jerk))
+
+
+@dataclass(frozen=True, slots=True)
+class Rates:
+    """softMC rate overrides in percent (VRATE, ARATE, DRATE, JRATE), 0 < rate <= 100.
+
+    The overview page: "{vel|acc|jerk}{sync|desync}{tran|rot} = min({..}max{tran|rot}, {..}rate)"
+    and "arate influences syncing while drate influences de-syncing".  softMC rates are
+    percentages of the robot's maximum, so we read the formula as
+    ``effective = min(parameter, robot_max * rate / 100)`` with ARATE scaling the sync
+    acceleration and DRATE the de-sync acceleration.
+    """
+
+    vel: float = 100.0
+    acc: float = 100.0
+    dec: float = 100.0
+    jerk: float = 100.0
+
+    def __post_init__(self) -> None:
+        for name in ("vel", "acc", "dec", "jerk"):
+            value = getattr(self, name)
+            if not (0 < value <= 100):
+                raise ParameterError(f"rate {name} (={value!r}) must be in (0...100] percent")
+
+
+@dataclass(frozen=True, slots=True)
+class SoftMcOptions:
+    """Fixes to the literal algorithm page, each a named switch (default: the working reading).
+
+    ``SoftMcOptions.literal()`` reproduces the page as written.  Item numbers refer to
+    notes/tracking-algorithm-notes.md.
+    """
+
+    #: item 3: rendezvous acceleration = master acceleration (literal: ``pred_acc = 0``)
+    pred_acc_from_master: bool = True
+    #: item 6: dp0 = v0*T, ddp0 = a0*T^2 at engage (literal: not initialised, i.e. 0)
+    init_increments_from_state: bool = True
+    #: item 8 (key bug): after a clamp feed back end-of-sample values
+    #: v = (dp + ddp/2 + dddp/3)/T, a = (ddp + dddp)/T^2 (literal: dp/T and ddp/T^2)
+    end_of_sample_feedback: bool = True
+    #: item 7: cap the velocity step so that |v| + a^2/(2J) <= V (literal: |dp| <= V*T only)
+    braking_distance_velocity: bool = True
+    #: item 9: the page's "take the middle" step when switching to SYNCED
+    take_the_middle: bool = True
+    #: item 9: sync thresholds g*A*T and g*A*T^2 (algorithm page); False: overview page's
+    #: "position error < 1/2*A*T^2" with velocity threshold g*A*T
+    unit_consistent_thresholds: bool = True
+
+    @classmethod
+    def literal(cls) -> "SoftMcOptions":
+        """The algorithm page exactly as written (for regression tests and comparison)."""
+        return cls(pred_acc_from_master=False, init_increments_from_state=False,
+                   end_of_sample_feedback=False, braking_distance_velocity=False,
+                   take_the_middle=True, unit_consistent_thresholds=True)
+
+
+@dataclass(frozen=True, slots=True)
+class TrackerParams:
+    """Everything that configures one tracker (one robot group on one moving frame).
+
+    Sync/de-sync limits are the page's ``{Velocity|Acceleration|Jerk}{Sync|DeSync}{Tran|Rot}``;
+    the effective values are capped by the robot's maxima and rates (:meth:`effective`).
+    ``master_max_*`` are the moving frame's ``VelocityMaxTrans``/``AccelerationMaxTrans``/...
+    (page defaults 1000 mm/s, 1000 mm/s^2, 100 deg/s, 100 deg/s^2): a master above them is an
+    error that starts the de-sync.  Only velocity and acceleration are monitored; the jerk
+    field is kept for completeness (the page lists JerkMax but monitors vel and acc).
+    """
+
+    sample_time_s: float = 0.001
+    mode: Mode = Mode.ABSOLUTE
+    planner: str = "optimal"
+    sync_trans: Limits = Limits(2000.0, 20000.0, 400000.0)
+    desync_trans: Limits = Limits(2000.0, 20000.0, 400000.0)
+    sync_rot: Limits = Limits(360.0, 3600.0, 72000.0)
+    desync_rot: Limits = Limits(360.0, 3600.0, 72000.0)
+    robot_max_trans: Limits | None = None
+    robot_max_rot: Limits | None = None
+    rates: Rates = Rates()
+    #: MF.FilterFactor (g): sync thresholds g*A*T and g*A*T^2 (softmc planner)
+    filter_factor: float = 1.0
+    #: MF.DampingFactor: multiplies the softmc time-to-reach estimate
+    damping_factor: float = 1.0
+    #: MF.MaxFlops: more velocity-error sign flips than this within ``max_flops_time_s``
+    #: (while |dv| is still above g*A*T) is an over-oscillation
+    max_flops: int = 10
+    #: the page's undocumented maxFlopsTime, read as the flip-counting window [s]
+    max_flops_time_s: float = 1.0
+    #: not synchronised after this long [s] -> APPROACH_TIMEOUT
+    approach_timeout_s: float = 5.0
+    master_max_trans: Limits = Limits(1000.0, 1000.0, 1000.0)
+    master_max_rot: Limits = Limits(100.0, 100.0, 100.0)
+    softmc: SoftMcOptions = field(default_factory=SoftMcOptions)
+    #: de-sync starts from the current acceleration (algorithm page; jerk-limited, default)
+    #: or from zero acceleration (overview page item 5; an acceleration step if the master
+    #: was accelerating)
+    desync_from_current_acceleration: bool = True
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.sample_time_s) and 1e-5 <= self.sample_time_s <= 0.1):
+            raise ParameterError(
+                f"sample_time_s (={self.sample_time_s!r}) must be in [1e-05...0.1] s")
+        try:
+            object.__setattr__(self, "mode", Mode(self.mode))
+        except ValueError:
+            raise ParameterError(f"mode (={self.mode!r}) must be 3 (absolute) or 5 (relative)")
+        if self.mode == Mode.OFF:
+            raise ParameterError("mode (=0) must be 3 (absolute) or 5 (relative)")
+        if not (self.filter_factor > 0 and math.isfinite(self.filter_factor)):
+            raise ParameterError(f"filter_factor (={self.filter_factor!r}) must be > 0")
+        if not (self.damping_factor > 0 and math.isfinite(self.damping_factor)):
+            raise ParameterError(f"damping_factor (={self.damping_factor!r}) must be > 0")
+        if int(self.max_flops) != self.max_flops or self.max_flops < 1:
+            raise ParameterError(f"max_flops (={self.max_flops!r}) must be an integer >= 1")
+        if not self.max_flops_time_s > 0:
+            raise ParameterError(f"max_flops_time_s (={self.max_flops_time_s!r}) must be > 0")
+        if not self.approach_timeout_s > 0:
+            raise ParameterError(
+                f"approach_timeout_s (={self.approach_timeout_s!r}) must be > 0")
+
+    def with_(self, **changes) -> "TrackerParams":
+        """A copy with some fields changed (validated again)."""
+        return replace(self, **changes)
+
+    def _effective(self, value: Limits, robot_max: Limits | None, accel_rate: float) -> Limits:
+        if robot_max is None:
+            return value
+        r = self.rates
+        cap = Limits(robot_max.vel * r.vel / 100.0, robot_max.acc * accel_rate / 100.0,
+                     robot_max.jerk * r.jerk / 100.0)
+        return value.capped(cap)
+
+    def effective(self) -> "EffectiveLimits":
+        """Sync/de-sync limits after the robot maxima and rates (ARATE sync, DRATE de-sync)."""
+        return EffectiveLimits(
+            sync_trans=self._effective(self.sync_trans, self.robot_max_trans, self.rates.acc),
+            desync_trans=self._effective(self.desync_trans, self.robot_max_trans, self.rates.dec),
+            sync_rot=self._effective(self.sync_rot, self.robot_max_rot, self.rates.acc),
+            desync_rot=self._effective(self.desync_rot, self.robot_max_rot, self.rates.dec),
+        )
+
+
+@dataclass(frozen=True, slots=True)
+class EffectiveLimits:
+    sync_trans: Limits
+    desync_trans: Limits
+    sync_rot: Limits
+    desync_rot: Limits
+
+
+@dataclass(frozen=True, slots=True)
+class MotionState:
+    """Position, velocity and acceleration of a Cartesian point plus one tool-axis angle.
+
+    Used for both the master (moving frame) and the robot setpoint.
+    ``pos`` mm, ``vel`` mm/s, ``acc`` mm/s^2; ``ang`` deg, ``ang_vel`` deg/s, ``ang_acc`` deg/s^2.
+    """
+
+    pos: Vec3 = ZERO3
+    vel: Vec3 = ZERO3
+    acc: Vec3 = ZERO3
+    ang: float = 0.0
+    ang_vel: float = 0.0
+    ang_acc: float = 0.0
+
+    @classmethod
+    def at(cls, x: float = 0.0, y: float = 0.0, z: float = 0.0, c: float = 0.0) -> "MotionState":
+        """A state at rest at (x, y, z) mm and angle c deg."""
+        return cls((float(x), float(y), float(z)), ZERO3, ZERO3, float(c), 0.0, 0.0)
+
+    def extrapolated(self, dt_s: float) -> "MotionState":
+        """This state moved on by ``dt_s`` seconds at constant acceleration."""
+        h = 0.5 * dt_s * dt_s
+        p, v, a = self.pos, self.vel, self.acc
+        return MotionState(
+            (p[0] + v[0] * dt_s + a[0] * h, p[1] + v[1] * dt_s + a[1] * h,
+             p[2] + v[2] * dt_s + a[2] * h),
+            (v[0] + a[0] * dt_s, v[1] + a[1] * dt_s, v[2] + a[2] * dt_s),
+            a,
+            self.ang + self.ang_vel * dt_s + self.ang_acc * h,
+            self.ang_vel + self.ang_acc * dt_s,
+            self.ang_acc,
+        )
+
+
+@dataclass(frozen=True, slots=True)
+class TrackerOutput:
+    """What one tracker update produces (one sample)."""
+
+    setpoint: MotionState
+    state: TrackState
+    imfs: Imfs
+    error: TrackError
+    #: sample index k of this setpoint (time k*T since the tracker was created)
+    sample: int
+    #: True on the sample where the approach ended (switch into SYNCED)
+    synchronized_now: bool = False
