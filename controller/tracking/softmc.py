@@ -43,6 +43,20 @@ from .types import Limits, SoftMcOptions
 from .vec import Vec
 
 
+def time_to_reach(pos_diff: float, vel_diff: float, master_speed: float, robot_speed: float,
+                  acc: float, jerk: float, sample_time_s: float,
+                  damping_factor: float = 1.0) -> float:
+    """Time-to-reach estimate D [s] (algorithm page 1.2.2), rounded up to whole samples.
+
+    D = sqrt(K*|dv|/J) + sqrt(4*|dp|/A), K = 4 if |vm| > |v| else 2; D *= DampingFactor;
+    D = T*int(D/T + 1).  ``pos_diff`` [mm], ``vel_diff`` [mm/s] are norms; speeds [mm/s].
+    """
+    K = 4.0 if master_speed > robot_speed else 2.0
+    D = math.sqrt(K * vel_diff / jerk) + math.sqrt(4.0 * pos_diff / acc)
+    D *= damping_factor
+    return sample_time_s * int(D / sample_time_s + 1.0)
+
+
 class SoftMcPlanner:
     """One channel of the softMC approach.  ``reset()`` at engage, ``step()`` every sample."""
 
@@ -111,12 +125,8 @@ class SoftMcPlanner:
             vdn += d * d
             mvn += mv[i] * mv[i]
             vn += v[i] * v[i]
-        pdn = math.sqrt(pdn)
-        vdn = math.sqrt(vdn)
-        K = 4.0 if math.sqrt(mvn) > math.sqrt(vn) else 2.0
-        D = math.sqrt(K * vdn / lim.jerk) + math.sqrt(4.0 * pdn / lim.acc)
-        D *= self.damping_factor
-        D = T * int(D / T + 1.0)
+        D = time_to_reach(math.sqrt(pdn), math.sqrt(vdn), math.sqrt(mvn), math.sqrt(vn),
+                          lim.acc, lim.jerk, T, self.damping_factor)
 
         # 1.2.3 rendezvous prediction, t = D - T (time-origin shift)
         t = D - T

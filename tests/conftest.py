@@ -1,0 +1,6 @@
+"""Shared test configuration: a derandomised hypothesis profile."""
+
+from hypothesis import settings
+
+settings.register_profile("ci", derandomize=True, deadline=None, print_blob=True)
+settings.load_profile("ci")
