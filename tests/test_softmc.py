@@ -73,7 +73,8 @@ def test_K_factor_uses_speed_magnitudes():
     # robot 0 -> master 100 mm/s: K=4, D = T*int(sqrt(4*100/4e7)/T + 1) = T*int(4.16) = 0.004 s;
     big = Limits(1e6, 1e9, 4e7)
     for v_robot, v_master, D in ((0.0, 100.0, 0.004),):
-        p = SoftMcPlanner(big, 0.001, filter_factor=1e-9)
+        p = SoftMcPlanner(big, 0.001, filter_factor=1e-9,
+                          options=SoftMcOptions(time_to_reach_k=(4.0, 2.0)))
         p.reset((0.0,), (v_robot,), (0.0,))
         pos, _, _, _ = p.step((0.0 + 0.001 * v_master,), (v_master,), (0.0,))
         # quintic from (0, v_robot, 0) to (pd, v_master, 0) at D, where
@@ -99,8 +100,29 @@ def test_time_to_reach_hand_computed():
     assert time_to_reach(10, 100, 300, 300, 2e4, 4e5, 0.001) == pytest.approx(0.068)
     # DampingFactor 1.5 before rounding: 0.0763441*1.5 = 0.1145161 -> 0.115 s
     assert time_to_reach(10, 100, 300, 200, 2e4, 4e5, 0.001, 1.5) == pytest.approx(0.115)
+    # our reading K = 16: sqrt(16*100/4e5) + 0.0447214 = 0.0632456 + 0.0447214 = 0.1079670
+    #   -> 0.108 s
+    assert time_to_reach(10, 100, 300, 200, 2e4, 4e5, 0.001, 1.0, 16.0, 16.0) == \
+        pytest.approx(0.108)
     # always at least one sample, even at zero distance: floor + 1
     assert time_to_reach(0, 0, 0, 0, 2e4, 4e5, 0.004) == pytest.approx(0.004)
+
+
+def test_page_K_limit_cycles_where_our_reading_synchronises():
+    # robot at the master's position, at rest, master at 200 mm/s: the velocity error
+    # dominates.  With the page's K = (4, 2) the fixed algorithm limit-cycles (over-oscillation);
+    # with K = 16 it synchronises.
+    from controller.tracking import MotionState, TrackError
+    results = {}
+    for k in ((4.0, 2.0), (16.0, 16.0)):
+        p = TrackerParams(sample_time_s=0.002, planner="softmc",
+                          softmc=SoftMcOptions(time_to_reach_k=k))
+        tr = Tracker(p, MotionState.at(0.0, 0.0, 0.0))
+        run_tracker(tr, conveyor((1, 0, 0), 200.0), 1.5)
+        results[k] = (tr.synced_at, tr.error)
+    assert results[(4.0, 2.0)][0] is None
+    assert results[(4.0, 2.0)][1] == TrackError.OVER_OSCILLATION
+    assert results[(16.0, 16.0)][0] is not None and results[(16.0, 16.0)][1] == TrackError.NONE
 
 
 def test_damping_factor_scales_time_to_reach():

@@ -7,7 +7,11 @@ Per sample (period T) the planner gets the master's state at this sample (pm, vm
 holds the robot setpoint of the previous sample (p, v, a).  It computes:
 
 1. Time to reach (1.2.2):  D = sqrt(K*|vm - v| / J) + sqrt(4*|pm - p| / A),
-   K = 4 if |vm| > |v| else 2 (the page compares speeds' magnitudes);
+   page: K = 4 if |vm| > |v| else 2.  Our reading (option ``time_to_reach_k``, default
+   (16, 16)): the page's own comment says the time doubles because the robot must pass the
+   master's speed and come back; a jerk-limited speed change takes sqrt(4*|dv|/J), twice that
+   is sqrt(16*|dv|/J).  With the page's K the fixed algorithm limit-cycles whenever the
+   velocity error dominates (relative mode, robot already at the master);
    D *= DampingFactor;  D = T*int(D/T + 1)  (floor + 1: always >= T).
 2. Rendezvous prediction (1.2.3) with t = D - T: the quintic starts at the previous sample
    (k-1)T and ends at (k-1)T + D = kT + t, so the master is predicted t ahead of its sample
@@ -45,13 +49,15 @@ from .vec import Vec
 
 def time_to_reach(pos_diff: float, vel_diff: float, master_speed: float, robot_speed: float,
                   acc: float, jerk: float, sample_time_s: float,
-                  damping_factor: float = 1.0) -> float:
+                  damping_factor: float = 1.0, k_faster: float = 4.0,
+                  k_slower: float = 2.0) -> float:
     """Time-to-reach estimate D [s] (algorithm page 1.2.2), rounded up to whole samples.
 
-    D = sqrt(K*|dv|/J) + sqrt(4*|dp|/A), K = 4 if |vm| > |v| else 2; D *= DampingFactor;
+    D = sqrt(K*|dv|/J) + sqrt(4*|dp|/A), K = k_faster if |vm| > |v| else k_slower (the page:
+    4 and 2, the defaults here; the planner passes SoftMcOptions.time_to_reach_k); D *= DampingFactor;
     D = T*int(D/T + 1).  ``pos_diff`` [mm], ``vel_diff`` [mm/s] are norms; speeds [mm/s].
     """
-    K = 4.0 if master_speed > robot_speed else 2.0
+    K = k_faster if master_speed > robot_speed else k_slower
     D = math.sqrt(K * vel_diff / jerk) + math.sqrt(4.0 * pos_diff / acc)
     D *= damping_factor
     return sample_time_s * int(D / sample_time_s + 1.0)
@@ -118,15 +124,22 @@ class SoftMcPlanner:
         vdn = 0.0
         mvn = 0.0
         vn = 0.0
+        closing = 0.0
         for i in rng:
             d = mp[i] - p[i]
             pdn += d * d
-            d = mv[i] - v[i]
-            vdn += d * d
+            dv = mv[i] - v[i]
+            vdn += dv * dv
+            closing += d * dv
             mvn += mv[i] * mv[i]
             vn += v[i] * v[i]
-        D = time_to_reach(math.sqrt(pdn), math.sqrt(vdn), math.sqrt(mvn), math.sqrt(vn),
-                          lim.acc, lim.jerk, T, self.damping_factor)
+        if opts.directional_k:
+            # overshoot needed (position and velocity errors point the same way): "faster" K
+            faster, slower = (1.0, 0.0) if closing > 0.0 else (0.0, 1.0)
+        else:
+            faster, slower = math.sqrt(mvn), math.sqrt(vn)
+        D = time_to_reach(math.sqrt(pdn), math.sqrt(vdn), faster, slower,
+                          lim.acc, lim.jerk, T, self.damping_factor, *opts.time_to_reach_k)
 
         # 1.2.3 rendezvous prediction, t = D - T (time-origin shift)
         t = D - T

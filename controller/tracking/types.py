@@ -115,6 +115,20 @@ class SoftMcOptions:
     notes/tracking-algorithm-notes.md.
     """
 
+    #: item 1: K of the time-to-reach estimate, (K if |vm| > |v|, K otherwise); page: (4, 2).
+    #: The page's comment: the robot must pass the master's speed and come back, "therefore
+    #: the multiplication by 2".  A jerk-limited speed change by |dv| takes 2*sqrt(|dv|/J)
+    #: = sqrt(4*|dv|/J); twice that is sqrt(16*|dv|/J).  The page's (4, 2) is 2-3x shorter
+    #: than the time-optimal duration (Ruckig: 0.092 s for dv = 200 mm/s, J = 4e5; page:
+    #: 0.045 s) and makes the fixed algorithm limit-cycle whenever the velocity error dominates
+    #: (relative mode always starts there): 33 of 120 random approaches failed; with (16, 16)
+    #: none did.  Both cases use 16 because whether the overshoot is needed depends on the
+    #: errors' directions, not on which speed is larger.
+    time_to_reach_k: tuple[float, float] = (16.0, 16.0)
+    #: item 1 (experimental): choose K by direction: the first K when the position and
+    #: velocity errors point the same way (the robot must overshoot the master's speed).
+    #: Measured no better than (16, 16) on the benchmark suite; off by default.
+    directional_k: bool = False
     #: item 3: rendezvous acceleration = master acceleration (literal: ``pred_acc = 0``)
     pred_acc_from_master: bool = True
     #: item 6: dp0 = v0*T, ddp0 = a0*T^2 at engage (literal: not initialised, i.e. 0)
@@ -133,7 +147,7 @@ class SoftMcOptions:
     @classmethod
     def literal(cls) -> "SoftMcOptions":
         """The algorithm page exactly as written (for regression tests and comparison)."""
-        return cls(pred_acc_from_master=False, init_increments_from_state=False,
+        return cls(time_to_reach_k=(4.0, 2.0), pred_acc_from_master=False, init_increments_from_state=False,
                    end_of_sample_feedback=False, braking_distance_velocity=False,
                    take_the_middle=True, unit_consistent_thresholds=True)
 
@@ -164,11 +178,11 @@ class TrackerParams:
     filter_factor: float = 1.0
     #: MF.DampingFactor: multiplies the softmc time-to-reach estimate
     damping_factor: float = 1.0
-    #: MF.MaxFlops: more velocity-error sign flips than this within ``max_flops_time_s``
-    #: (while |dv| is still above g*A*T) is an over-oscillation
-    max_flops: int = 10
+    #: MF.MaxFlops: more large velocity-error sign flips (half-swings whose peak |dv| exceeds
+    #: g*A*T) than this within ``max_flops_time_s`` is an over-oscillation
+    max_flops: int = 6
     #: the page's undocumented maxFlopsTime, read as the flip-counting window [s]
-    max_flops_time_s: float = 1.0
+    max_flops_time_s: float = 3.0
     #: not synchronised after this long [s] -> APPROACH_TIMEOUT
     approach_timeout_s: float = 5.0
     master_max_trans: Limits = Limits(1000.0, 1000.0, 1000.0)
