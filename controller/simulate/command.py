@@ -1,4 +1,4 @@
-"""``cantrack simulate SCENARIO.yaml [-o OUT.csv] [--plot [PNG]] [--quiet]``.
+"""``cantrack simulate SCENARIO.yaml [-o OUT.csv] [--plot [PNG]] [--quiet] [--record PREFIX]``.
 
 Runs the scenario, writes the CSV trace (default: ``<scenario stem>_trace.csv`` in the current
 directory), prints the summary and, with ``--plot``, writes a PNG (default: the trace path
@@ -12,6 +12,8 @@ import argparse
 import logging
 from pathlib import Path
 from typing import Sequence
+
+from ..errors import ConfigError
 
 log = logging.getLogger(__name__)
 
@@ -32,6 +34,9 @@ def build_parser(prog: str = "cantrack simulate") -> argparse.ArgumentParser:
                              "put it after SCENARIO.yaml or give PNG")
     parser.add_argument("-q", "--quiet", action="store_true",
                         help="print nothing (errors still go to stderr)")
+    parser.add_argument("--record", type=Path, metavar="PREFIX",
+                        help="conveyor scenarios: also write PREFIX_triggers.csv (and, with an "
+                             "encoder, PREFIX_encoder.csv) for a deterministic replay")
     return parser
 
 
@@ -52,10 +57,20 @@ def main(argv: Sequence[str] | None = None, prog: str = "cantrack simulate") -> 
         png = Path(args.plot) if args.plot else out.with_suffix(".png")
         plot_result(result, png)
         log.info("plot written to %s", png)
+    logs = ()
+    if args.record is not None:
+        from .conveyor import ConveyorResult, write_logs
+
+        if not isinstance(result, ConveyorResult):
+            raise ConfigError("--record applies to conveyor scenarios only (a 'conveyor' "
+                              "section)", file=str(args.scenario))
+        logs = tuple(p for p in write_logs(result, args.record) if p is not None)
     if not args.quiet:
         print(format_summary(result))
         print()
         print(f"Trace      {out}")
         if png is not None:
             print(f"Plot       {png}")
+        for p in logs:
+            print(f"Log        {p}")
     return 0

@@ -64,6 +64,10 @@ def _legend(ax, ncol: int = 1) -> None:
 
 def plot_result(result: SimulationResult, path: str | Path, *, dpi: int = 110) -> Path:
     """Write the PNG to ``path``; returns the path."""
+    from .conveyor import ConveyorResult
+
+    if isinstance(result, ConveyorResult):
+        return plot_conveyor_result(result, path, dpi=dpi)
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
     from matplotlib.patches import Patch
@@ -152,6 +156,110 @@ def plot_result(result: SimulationResult, path: str | Path, *, dpi: int = 110) -
     fig.legend(handles=handles, loc="upper left", ncol=3, fontsize=8, frameon=False,
                bbox_to_anchor=(0.005, 1.0 - 0.36 / height_in))
     fig.tight_layout(rect=(0, 0, 1, 1.0 - 0.55 / height_in))
+    path = Path(path)
+    fig.savefig(path, dpi=dpi)
+    return path
+
+
+# -- conveyor scenarios ------------------------------------------------------------------
+def plot_conveyor_result(result, path: str | Path, *, dpi: int = 110) -> Path:
+    """PNG of a conveyor scenario.
+
+    Left: the XY plane [mm] - the conveyor path (the trigger point and, for a rotary frame,
+    the arc; the window part drawn thick), each item's path (grey), where items were picked
+    (green dots) or missed (red crosses), and the robot's TCP path (blue; the virtual robot
+    dotted).  Right, on the time axis [s]: the TCP's x, y, z and the IMFS value (-2...1),
+    with the items' sync times marked.
+    """
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    r = result
+    sc = r.scenario
+    f = r.frame
+    g = f.geometry()
+    fig = Figure(figsize=(13, 6.2))
+    FigureCanvasAgg(fig)
+    ax, (at, ai) = fig.add_subplot(1, 2, 1), fig.subplots(2, 1, sharex=True, gridspec_kw={
+        "left": 0.62, "right": 0.985, "height_ratios": [3, 1.3]})
+    w = f.window
+    if sc.frame.type == 0:
+        d = g.directions[0]
+        o = g.origin.pos
+        lo = min(0.0, w.upstream[0])
+        hi = w.downstream[0] * 1.1
+
+        def seg(a, b):
+            return np.array([[o[i] + d[i] * s for i in range(3)] for s in (a, b)])
+        full = seg(lo, hi)
+        win = seg(w.upstream[0], w.downstream[0])
+    else:
+        arc = g.arc
+        xs = np.linspace(0.0, arc.alpha_deg, 181)
+        full = np.array([arc.position(x) for x in xs])
+        xw = np.linspace(max(0.0, w.upstream[0]), min(arc.alpha_deg, w.downstream[0]), 91)
+        win = np.array([arc.position(x) for x in xw])
+        circle = np.array([arc.position(x) for x in np.linspace(0, 360, 181)])
+        ax.plot(circle[:, 0], circle[:, 1], color="0.85", lw=0.8)
+        ax.plot(*arc.center[:2], "+", color="0.5")
+    ax.plot(full[:, 0], full[:, 1], color="0.55", lw=1.2, label="conveyor path")
+    ax.plot(win[:, 0], win[:, 1], color="tab:orange", lw=5, alpha=0.5, solid_capstyle="butt",
+            label="window")
+    zero = f.zero()
+    ax.plot(zero.pos[0], zero.pos[1], "s", color="k", ms=5, label="trigger point (MF.zero)")
+    for rid, (ts, pts) in r.item_paths.items():
+        ax.plot(pts[:, 0], pts[:, 1], color="0.6", lw=0.6)
+    picked_x, picked_y, missed_x, missed_y = [], [], [], []
+    T = r.sample_time_s
+    for rec in r.records:
+        if rec.item_id in r.picks:
+            k = int(round(r.picks[rec.item_id] / T))
+            picked_x.append(r.setpoint_pos[k, 0])
+            picked_y.append(r.setpoint_pos[k, 1])
+        elif rec.missed_sample is not None:
+            ts, pts = r.item_paths[rec.item_id]
+            j = int(np.argmin(np.abs(ts - rec.missed_sample * T)))
+            missed_x.append(pts[j, 0])
+            missed_y.append(pts[j, 1])
+    ax.plot(r.virtual_pos[:, 0], r.virtual_pos[:, 1], ":", color="tab:blue", lw=0.8,
+            label="virtual robot")
+    ax.plot(r.setpoint_pos[:, 0], r.setpoint_pos[:, 1], color="tab:blue", lw=1.3,
+            label="robot TCP")
+    if picked_x:
+        ax.plot(picked_x, picked_y, "o", color="tab:green", ms=7, label="picked")
+    if missed_x:
+        ax.plot(missed_x, missed_y, "x", color="tab:red", ms=9, mew=2, label="missed (30238)")
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.set_xlabel("x [mm]")
+    ax.set_ylabel("y [mm]")
+    ax.grid(True, lw=0.4, alpha=0.6)
+    ax.legend(loc="best", fontsize=7)
+    title = sc.name or (sc.source.name if sc.source else "conveyor scenario")
+    ax.set_title(f"{title}\n{len(r.records)} items: {r.caught} caught, {len(r.picks)} picked, "
+                 f"{r.missed} missed", fontsize=10)
+
+    t = r.time_s
+    for i, (name, c) in enumerate(zip("xyz", ("tab:blue", "tab:orange", "tab:green"))):
+        at.plot(t, r.setpoint_pos[:, i], color=c, lw=1.1, label=f"TCP {name}")
+        at.plot(t, r.virtual_pos[:, i], ":", color=c, lw=0.8)
+    for rec in r.records:
+        if rec.synced_s is not None:
+            at.axvline(rec.synced_s, color="tab:green", lw=0.6, alpha=0.6)
+        if rec.missed_sample is not None:
+            at.axvline(rec.missed_sample * T, color="tab:red", lw=0.8, alpha=0.8)
+    at.set_ylabel("position [mm]\n(virtual dotted)")
+    at.grid(True, lw=0.4, alpha=0.6)
+    at.legend(loc="upper left", fontsize=7, ncol=3)
+    at.set_title("TCP over time (green: item synchronised, red: item missed)", fontsize=9)
+    ai.step(t, r.imfs, where="post", color="k", lw=1.0)
+    ai.set_yticks([-2, -1, 0, 1])
+    ai.set_ylim(-2.4, 1.4)
+    ai.set_ylabel("IMFS")
+    ai.set_xlabel("time [s]")
+    ai.grid(True, lw=0.4, alpha=0.6)
+    ai.set_xlim(t[0], t[-1])
+    fig.subplots_adjust(left=0.06, right=0.98, bottom=0.09, top=0.9, wspace=0.25)
+    ax.set_position([0.065, 0.09, 0.47, 0.8])
     path = Path(path)
     fig.savefig(path, dpi=dpi)
     return path

@@ -234,12 +234,19 @@ def simulate(scenario: Scenario) -> SimulationResult:
         master_inputs=inputs)
 
 
-def run_scenario(source: str | Path | dict | Scenario, *,
-                 base_dir: str | Path | None = None) -> SimulationResult:
+def run_scenario(source, *, base_dir: str | Path | None = None):
     """Load (a path to a YAML file, or a mapping with the same keys) and run a scenario.
 
+    Returns a :class:`SimulationResult`, or for a conveyor scenario (top-level ``conveyor``
+    key) a :class:`controller.simulate.conveyor.ConveyorResult`.
     Raises :class:`controller.errors.ConfigError` for an invalid scenario.
     """
-    scenario = source if isinstance(source, Scenario) else load_scenario(source,
-                                                                         base_dir=base_dir)
+    from .conveyor import ConveyorScenario, run_conveyor
+
+    if isinstance(source, (Scenario, ConveyorScenario)):
+        scenario = source
+    else:
+        scenario = load_scenario(source, base_dir=base_dir)
+    if isinstance(scenario, ConveyorScenario):
+        return run_conveyor(scenario)
     return simulate(scenario)

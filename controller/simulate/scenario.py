@@ -87,6 +87,9 @@ After its last segment the master keeps its final speed and rotation rate.  Befo
 CSV master holds its first row's values.  A CSV master is interpolated linearly at the sample
 times; its first row must be at time <= 0 and its last at or after ``duration_s``.
 
+Conveyor scenarios (a top-level ``conveyor:`` key: a moving frame, items, a robot doing pick
+motions) have their own schema, documented in :mod:`controller.simulate.conveyor`.
+
 Errors: every problem is a :class:`controller.errors.ConfigError` naming the file, the line
 and the key (dotted path such as ``master.segments[1].velocity``), with the allowed range;
 an unknown key suggests the closest valid one.  ``TrackerParams``' own ``ParameterError`` is
@@ -741,6 +744,11 @@ def _times(node: _Node, key: str, duration_s: float, required: bool) -> tuple[fl
 
 def _parse(data: Any, ctx: _Ctx, source: Path | None) -> Scenario:
     root = _Node(ctx, data, "", 1 if isinstance(data, (_Mapping, _Sequence)) else None)
+    if "conveyor" in root.m:
+        # a conveyor scenario (moving frame, items, robot program): controller.simulate.conveyor
+        from .conveyor import parse_conveyor
+
+        return parse_conveyor(root, ctx, source)
     root.check_keys(_TOP_KEYS)
     name = root.string("name", "")
     params = _tracker_params(root.section("tracker", required=True))
@@ -798,6 +806,9 @@ def _parse(data: Any, ctx: _Ctx, source: Path | None) -> Scenario:
 
 def load_scenario(source: str | Path | dict, *, base_dir: str | Path | None = None) -> Scenario:
     """Load and validate a scenario from a YAML file (path) or an already parsed mapping.
+
+    A mapping with a top-level ``conveyor`` key is a conveyor scenario and gives a
+    :class:`controller.simulate.conveyor.ConveyorScenario` (schema in that module).
 
     ``base_dir``: where relative CSV paths of a mapping are resolved (default: the cwd; for a
     file its own directory).  Raises :class:`ConfigError` naming the file, line and key.

@@ -65,6 +65,10 @@ def _s(x: float | None, suffix: str = "") -> str:
 
 def format_summary(result: SimulationResult) -> str:
     """The human-readable summary printed by ``cantrack simulate``."""
+    from .conveyor import ConveyorResult
+
+    if isinstance(result, ConveyorResult):
+        return format_conveyor_summary(result)
     r = result
     sc = r.scenario
     p = r.params
@@ -137,4 +141,88 @@ def format_summary(result: SimulationResult) -> str:
     final_err = TrackError(int(r.error[-1]))
     lines.append(f"Final      state {TrackState(int(r.state[-1])).name}, imfs {int(r.imfs[-1])}, "
                  f"error {final_err.name}")
+    return "\n".join(lines)
+
+
+# -- conveyor scenarios ------------------------------------------------------------------
+def format_conveyor_summary(result) -> str:
+    """The summary of a conveyor scenario: items caught/missed/skipped, per-item time to
+    sync, peak tracking errors, oscillation count, pick time and prediction."""
+    from ..conveyor import ITEM_MISSED_CODE
+    from ..tracking import Imfs
+    from .conveyor import type_name
+
+    r = result
+    sc = r.scenario
+    p = sc.params
+    T = p.sample_time_s
+    f = r.frame
+    fs = sc.frame
+    lines = []
+    title = str(sc.source) if sc.source is not None else "<scenario>"
+    if sc.name:
+        title += f"  ({sc.name})"
+    lines.append(f"Scenario   {title}")
+    unit = "mm" if fs.type == 0 else "deg"
+    w = fs.window
+    desc = f"'{f.name}' {type_name(fs.type)}, window {w.upstream[0]:g}...{w.downstream[0]:g} " \
+           f"{unit} from the trigger"
+    if fs.type != 0:
+        g = f.geometry()
+        desc += (f", center ({', '.join(f'{x:.1f}' for x in g.center)}) mm, R {g.radius:.1f} "
+                 f"mm, alpha {g.alpha_deg:.1f} deg")
+    lines.append(f"Frame      {desc}")
+    m = sc.master
+    src = "encoder log " + m.log_path.name if m.log_path is not None else (
+        "segment profile" if m.profile is not None else f"{m.speed:g} units/s")
+    if m.encoder is not None:
+        src += (f", encoder {m.encoder.counts_per_unit:g} counts/unit, modulus "
+                f"{m.encoder.modulus}, estimator window {m.encoder.window}")
+    lines.append(f"Master     {src}")
+    lines.append(f"Robot      '{sc.robot.name}', slave {sc.robot.slave}, planner {p.planner}, "
+                 f"T = {T * 1000:g} ms, {sc.n_samples} samples = {sc.n_samples * T:.3f} s")
+    n = len(r.records)
+    skipped_pred = len(r.skipped)
+    lines.append(f"Items      {n} triggered: {r.caught} caught, {len(r.picks)} picked, "
+                 f"{r.missed} missed ({ITEM_MISSED_CODE}), {r.count('skipped')} skipped "
+                 f"({skipped_pred} by the prediction), {r.count('lost')} lost")
+    lines.append("")
+    rows = []
+    for rec in r.records:
+        pred = r.predictions.get(rec.item_id)
+        ptxt = "-" if pred is None else (f"yes @{pred.time_s:.3f}" if pred.can_catch
+                                         else "no")
+        pick = r.picks.get(rec.item_id)
+        rows.append([str(rec.item_id), f"{rec.trigger_s:.3f}",
+                     "-" if rec.entered_s is None else f"{rec.entered_s:.3f}",
+                     "-" if rec.synced_s is None else f"{rec.synced_s:.3f}",
+                     "-" if rec.time_to_sync_s is None else f"{rec.time_to_sync_s:.3f}",
+                     f"{rec.peak_error_approach_mm:.2f}", f"{rec.peak_error_synced_mm:.2g}",
+                     str(rec.oscillations), rec.status.value,
+                     "-" if pick is None else f"{pick:.3f}", ptxt])
+    if rows:
+        lines += _table(["item", "trigger", "entered", "synced", "to sync", "peak err",
+                         "err synced", "osc", "status", "picked", "prediction"], rows, left=1)
+        lines.append("  (times in s; peak err: largest |target - contribution| while "
+                     "approaching [mm]; err synced: while synchronised [mm];")
+        lines.append("   osc: sign flips of the velocity error during the approach)")
+    notes = [(rid, why) for rid, why in r.skipped.items()]
+    for rid, why in notes:
+        lines.append(f"  item {rid} skipped: {why}")
+    errs = [e for e in r.events if e.kind in ("item_missed", "tracker_error", "command_error")]
+    if errs:
+        lines.append("")
+        lines.append("Errors")
+        for e in errs:
+            code = f" [{e.code}]" if e.code else ""
+            lines.append(f"  {e.sample * T:.3f} s  {e.kind}{code}  item {e.item}  "
+                         f"{e.message}".rstrip())
+    ttss = [rec.time_to_sync_s for rec in r.records if rec.time_to_sync_s is not None]
+    if ttss:
+        lines.append("")
+        lines.append(f"Time to sync   min {min(ttss):.3f} s, mean {sum(ttss) / len(ttss):.3f} s, "
+                     f"max {max(ttss):.3f} s")
+    lines.append("")
+    lines.append(f"Final      IMFS {Imfs(int(r.imfs[-1])).name} ({int(r.imfs[-1])}), slave "
+                 f"{int(r.slave[-1])}, {len(r.robot.buffer)} item(s) left in the buffer")
     return "\n".join(lines)

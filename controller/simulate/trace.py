@@ -48,7 +48,15 @@ INPUT_COLUMNS = (
 
 
 def write_trace(result: SimulationResult, path: str | Path) -> Path:
-    """Write the trace CSV to ``path`` (directories must exist); returns the path."""
+    """Write the trace CSV to ``path`` (directories must exist); returns the path.
+
+    A conveyor result gets its own columns
+    (:func:`controller.simulate.conveyor.write_conveyor_trace`).
+    """
+    from .conveyor import ConveyorResult, write_conveyor_trace
+
+    if isinstance(result, ConveyorResult):
+        return write_conveyor_trace(result, path)
     path = Path(path)
     r = result
     state_names = {int(s): s.name for s in TrackState}

@@ -1,0 +1,278 @@
+"""The moving frame object (overview page: "Moving Frame", Functional Change 2, "Theory of
+operation", "<Moving Frame>.type").
+
+A :class:`MovingFrame` is a softMC moving-frame variable: a named object with a type, NOF
+master sources, a geometry, a window and limits.  It is updated once per sample
+(:meth:`MovingFrame.update` reads its sources) and linked to robots by
+``<robot>.MasterFrame = <MF>`` (:class:`controller.conveyor.robot.RobotGroup`).
+
+Types (``<MF>.type``, default 0):
+
+- 0 linear: NOF sources, each along a direction (:mod:`.frames.linear`);
+- 1 rotary: the arc through UpStream[1], ArcPoint, DownStream[1] (:mod:`.frames.rotary`);
+- 2 rotary decoupled: as 1, but the orientation does not change with the master source.
+
+Errors where the page puts them:
+
+- setting ``type`` while the frame is engaged (linked to a robot): :class:`StateError`;
+- ``type`` 1 (and 2, "same as rotary") only with NOF = 1: :class:`ParameterError`
+  (the page's Range says 0-1 but lists 2; we accept 0...2);
+- collinear arc points (:class:`ArcGeometryError`): when ``center`` is queried while the frame
+  is not linked to any robot, and when the frame is assigned to a robot's MasterFrame (the
+  "circle pre-calculation").  While linked, the pre-calculated geometry is used.
+
+Limits (Functional Change 2, names and defaults of the page): VelocityMaxTrans 1000 mm/s,
+AccelerationMaxTrans 1000 mm/s^2, JerkMaxTrans 1000 mm/s^3, VelocityMaxRot 100 deg/s,
+AccelerationMaxRot 100 deg/s^2, JerkMaxRot 100 deg/s^3.  A master above the velocity or
+acceleration maxima is an error (the tracker's MASTER_VELOCITY / MASTER_ACCELERATION, which
+starts the de-sync); jerk is not monitored (the page monitors "velocities & accelerations").
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, fields
+from typing import Sequence
+
+from ..errors import ParameterError, StateError
+from ..tracking import Limits, TrackError
+from .frames import FramePoint, LinearGeometry, RotaryGeometry
+from .location import Location, Vec3, as_location, v_norm
+from .sources import MasterSource, SourceState
+from .triggers import TriggerEntry
+from .window import Window, WindowPosition
+
+LINEAR, ROTARY, ROTARY_DECOUPLED = 0, 1, 2
+TYPE_NAMES = {LINEAR: "linear", ROTARY: "rotary", ROTARY_DECOUPLED: "rotary decoupled"}
+
+
+@dataclass(frozen=True, slots=True)
+class FrameLimits:
+    """``<Moving Frame>.{Velocity|Acceleration|Jerk}Max{Trans|Rot}`` with the page's defaults.
+
+    Units: mm/s, mm/s^2, mm/s^3; deg/s, deg/s^2, deg/s^3.
+    """
+
+    VelocityMaxTrans: float = 1000.0
+    AccelerationMaxTrans: float = 1000.0
+    JerkMaxTrans: float = 1000.0
+    VelocityMaxRot: float = 100.0
+    AccelerationMaxRot: float = 100.0
+    JerkMaxRot: float = 100.0
+
+    def __post_init__(self) -> None:
+        for f in fields(self):
+            v = getattr(self, f.name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+                raise ParameterError(f"<Moving Frame>.{f.name} (={v!r}) must be a finite "
+                                     "number > 0")
+
+    @property
+    def trans(self) -> Limits:
+        return Limits(self.VelocityMaxTrans, self.AccelerationMaxTrans, self.JerkMaxTrans)
+
+    @property
+    def rot(self) -> Limits:
+        return Limits(self.VelocityMaxRot, self.AccelerationMaxRot, self.JerkMaxRot)
+
+
+class MovingFrame:
+    """A moving frame.  Units: mm, deg, s; source values in source units.
+
+    Linear parameters: ``origin`` (MF.zero, the trigger point's location), ``directions``
+    (one per DOF), ``scales`` [mm per source unit].  Rotary parameters: ``upstream``
+    (UpStream[1], a Location), ``arc_point``, ``downstream`` (positions), ``up_master`` /
+    ``down_master`` (UpMaster[1] / DownMaster[1], source units) or ``deg_per_unit``.
+    ``window``: :class:`Window` in frame units (default: unlimited).
+    """
+
+    def __init__(self, name: str, sources: Sequence[MasterSource] = (), *, type: int = LINEAR,
+                 nof: int | None = None, directions: Sequence[Sequence[float]] | None = None,
+                 scales: Sequence[float] | None = None,
+                 origin: Location | Sequence[float] = Location(),
+                 upstream: Location | Sequence[float] | None = None,
+                 arc_point: Sequence[float] | None = None,
+                 downstream: Sequence[float] | None = None, up_master: float = 0.0,
+                 down_master: float | None = None, deg_per_unit: float | None = None,
+                 limits: FrameLimits = FrameLimits(), window: Window | None = None) -> None:
+        self.name = str(name)
+        self.sources = tuple(sources)
+        n = nof if nof is not None else (len(self.sources) or 1)
+        if int(n) != n or n < 1:
+            raise ParameterError(f"frame {name!r}: NOF (={nof!r}) must be an integer >= 1")
+        if self.sources and len(self.sources) != n:
+            raise ParameterError(f"frame {name!r}: NOF (={n}) must equal the number of master "
+                                 f"sources ({len(self.sources)})")
+        self.nof = int(n)
+        self.directions = tuple(tuple(d) for d in directions) if directions is not None else \
+            tuple(tuple(1.0 if j == i else 0.0 for j in range(3)) for i in range(self.nof))
+        self.scales = tuple(scales) if scales is not None else (1.0,) * self.nof
+        self.origin = as_location(origin)
+        self.upstream = as_location(upstream) if upstream is not None else None
+        self.arc_point = tuple(arc_point) if arc_point is not None else None
+        self.downstream = tuple(downstream) if downstream is not None else None
+        self.up_master = float(up_master)
+        self.down_master = down_master
+        self.deg_per_unit = deg_per_unit
+        self.limits = limits
+        self.window = window if window is not None else Window.unlimited(self.nof)
+        if self.window.nof != self.nof:
+            raise ParameterError(f"frame {name!r}: the window has {self.window.nof} DOF(s), "
+                                 f"the frame NOF = {self.nof}")
+        self._type = LINEAR
+        #: the robot that has this frame as its (syncing/synced) MasterFrame, or None
+        self.engaged_by: str | None = None
+        #: robots de-syncing from this frame (it cannot be engaged until the set is empty)
+        self.desyncing_by: set[str] = set()
+        self._linked_geometry = None
+        #: the source states of the last update (one per DOF), None before the first
+        self.master: tuple[SourceState, ...] | None = None
+        self.sample = 0
+        self.type = type
+
+    # -- type -------------------------------------------------------------------------------
+    @property
+    def type(self) -> int:
+        return self._type
+
+    @type.setter
+    def type(self, value: int) -> None:
+        if isinstance(value, bool) or value not in (LINEAR, ROTARY, ROTARY_DECOUPLED):
+            raise ParameterError(f"<{self.name}>.type (={value!r}) must be 0 (linear), "
+                                 "1 (rotary) or 2 (rotary decoupled)")
+        if self.linked:
+            raise StateError(f"<{self.name}>.type cannot be set while the moving frame is "
+                             f"engaged (linked to robot(s) {self._linked_names()})")
+        if value != LINEAR and self.nof != 1:
+            raise ParameterError(f"<{self.name}>.type (={value}) rotary needs NOF = 1 "
+                                 f"(this frame has NOF = {self.nof})")
+        self._type = int(value)
+
+    @property
+    def type_name(self) -> str:
+        return TYPE_NAMES[self._type]
+
+    # -- linking (called by RobotGroup) -------------------------------------------------------
+    @property
+    def linked(self) -> bool:
+        return self.engaged_by is not None or bool(self.desyncing_by)
+
+    def _linked_names(self) -> str:
+        names = ([self.engaged_by] if self.engaged_by else []) + sorted(self.desyncing_by)
+        return ", ".join(repr(n) for n in names)
+
+    def _link(self) -> None:
+        """Circle pre-calculation at assignment (raises ArcGeometryError for a bad arc)."""
+        if not self.linked:
+            self._linked_geometry = self._build_geometry()
+
+    def _unlink_if_free(self) -> None:
+        if not self.linked:
+            self._linked_geometry = None
+
+    # -- geometry ---------------------------------------------------------------------------
+    def _build_geometry(self) -> LinearGeometry | RotaryGeometry:
+        if self._type == LINEAR:
+            if len(self.directions) != self.nof or len(self.scales) != self.nof:
+                raise ParameterError(f"frame {self.name!r}: give one direction and one scale "
+                                     f"per DOF (NOF = {self.nof})")
+            return LinearGeometry(self.origin, self.directions, self.scales)
+        missing = [n for n, v in (("UpStream[1]", self.upstream), ("ArcPoint", self.arc_point),
+                                  ("DownStream[1]", self.downstream)) if v is None]
+        if missing:
+            raise ParameterError(f"rotary frame {self.name!r}: {', '.join(missing)} not given")
+        return RotaryGeometry.from_points(
+            self.upstream, self.arc_point, self.downstream, up_master=self.up_master,
+            down_master=self.down_master, deg_per_unit=self.deg_per_unit,
+            decoupled=self._type == ROTARY_DECOUPLED)
+
+    def geometry(self) -> LinearGeometry | RotaryGeometry:
+        """The pre-calculated geometry while linked, else computed from the current values."""
+        if self._linked_geometry is not None:
+            return self._linked_geometry
+        return self._build_geometry()
+
+    def _rotary(self) -> RotaryGeometry:
+        if self._type == LINEAR:
+            raise StateError(f"<{self.name}>: center/start/normal/radius/alpha exist for "
+                             "rotary frames (type 1 or 2) only")
+        return self.geometry()
+
+    @property
+    def center(self) -> Vec3:
+        """``<MF>.center`` [mm] (rotary).  Unlinked: computed now (ArcGeometryError if the
+        three points are collinear)."""
+        return self._rotary().center
+
+    start = property(lambda self: self._rotary().start, doc="<MF>.start (unit vector)")
+    normal = property(lambda self: self._rotary().normal, doc="<MF>.normal (unit vector)")
+    radius = property(lambda self: self._rotary().radius, doc="<MF>.radius [mm]")
+    alpha = property(lambda self: self._rotary().alpha_deg, doc="arc angle alpha [deg]")
+
+    # -- cyclic -----------------------------------------------------------------------------
+    def update(self, k: int, t_s: float) -> tuple[SourceState, ...]:
+        """Read every master source for sample k (time t_s)."""
+        if not self.sources:
+            raise StateError(f"frame {self.name!r} has no master source")
+        self.master = tuple(s.read(k, t_s) for s in self.sources)
+        self.sample = k
+        return self.master
+
+    def set_master(self, states: Sequence[SourceState], k: int | None = None) -> None:
+        """Set the source states directly (shells and tests without source objects)."""
+        if len(states) != self.nof:
+            raise ParameterError(f"frame {self.name!r}: {len(states)} source state(s) given, "
+                                 f"NOF = {self.nof}")
+        self.master = tuple(states)
+        if k is not None:
+            self.sample = k
+
+    def _require_master(self) -> tuple[SourceState, ...]:
+        if self.master is None:
+            raise StateError(f"frame {self.name!r} has not been updated yet (no master values)")
+        return self.master
+
+    def source_values(self) -> tuple[float, ...]:
+        """The current master source values (what TRIGGER latches)."""
+        return tuple(s.pos for s in self._require_master())
+
+    # -- items ------------------------------------------------------------------------------
+    def coords(self, item: TriggerEntry, master: Sequence[SourceState] | None = None
+               ) -> tuple[tuple[float, ...], tuple[float, ...], tuple[float, ...]]:
+        """The item's DOF coordinates and rates [frame units] (from ``master`` or the last
+        update)."""
+        m = self._require_master() if master is None else master
+        geo = self.geometry()
+        return (geo.coords([s.pos for s in m], item.values), geo.rates([s.vel for s in m]),
+                geo.rates([s.acc for s in m]))
+
+    def point(self, item: TriggerEntry, master: Sequence[SourceState] | None = None
+              ) -> FramePoint:
+        """``<MF>.here`` for ``item``, with its rates."""
+        c, cd, cdd = self.coords(item, master)
+        return self.geometry().point(c, cd, cdd, item.dr_mm)
+
+    def here(self, item: TriggerEntry) -> Location:
+        return self.point(item).here
+
+    def zero(self, item: TriggerEntry | None = None) -> Location:
+        """``<MF>.zero`` (MF(0)): the item's location at its trigger."""
+        return self.geometry().zero(item.dr_mm if item is not None else 0.0)
+
+    def window_position(self, item: TriggerEntry,
+                        master: Sequence[SourceState] | None = None) -> WindowPosition:
+        return self.window.classify(self.coords(item, master)[0], item.inverse)
+
+    # -- monitoring -------------------------------------------------------------------------
+    def check_limits(self, point: FramePoint) -> TrackError:
+        """MASTER_VELOCITY / MASTER_ACCELERATION if ``point`` exceeds the frame's maxima."""
+        L = self.limits
+        if v_norm(point.vel) > L.VelocityMaxTrans or abs(point.ang_vel) > L.VelocityMaxRot:
+            return TrackError.MASTER_VELOCITY
+        if v_norm(point.acc) > L.AccelerationMaxTrans or \
+                abs(point.ang_acc) > L.AccelerationMaxRot:
+            return TrackError.MASTER_ACCELERATION
+        return TrackError.NONE
+
+    def __repr__(self) -> str:
+        return f"MovingFrame({self.name!r}, type={self._type} ({self.type_name}), NOF={self.nof})"

@@ -1,0 +1,16 @@
+"""Frame geometries: where an item is for given per-DOF frame coordinates.
+
+- :mod:`.linear` — type 0: NOF master sources, each along a direction vector.
+- :mod:`.rotary` — type 1 (rotary) and type 2 (rotary decoupled): the arc through UpStream[1],
+  ArcPoint and DownStream[1].
+
+A geometry is immutable and pure: ``point(c, cd, cdd, dr_mm)`` maps the item's coordinates
+(displacement since its trigger, per DOF, in frame units: mm for linear DOFs, deg for the
+rotary angle) and their rates to :class:`FramePoint` (the page's ``<MF>.here``).
+"""
+
+from .base import FramePoint
+from .linear import LinearGeometry
+from .rotary import ArcGeometry, RotaryGeometry, arc_from_points
+
+__all__ = ["ArcGeometry", "FramePoint", "LinearGeometry", "RotaryGeometry", "arc_from_points"]

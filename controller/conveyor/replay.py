@@ -1,0 +1,144 @@
+"""Deterministic record and replay of encoder counts and triggers (not on the page).
+
+A run of a :class:`controller.conveyor.cell.ConveyorCell` is a pure function of its inputs:
+the raw encoder counts per sample and the commands given between samples.  This module
+writes and reads those inputs as two CSV files and replays them:
+
+- encoder log: ``sample, time_s, <source name>...`` - one row per sample (from 0), the raw
+  counts each :class:`controller.conveyor.sources.EncoderSource` read
+  (:attr:`EncoderSource.log`);
+- trigger log: ``sample, robot, frame, values, dr_mm, inverse`` - one row per TRIGGER,
+  given after step ``sample`` (``values``: the latched master values, ``;``-separated, exact
+  ``repr`` floats).
+
+:func:`replay` rebuilds nothing itself: the caller builds the cell with
+``EncoderSource(counts=log[name])`` sources and hands the trigger events over; the outputs
+then equal the recorded run's bit for bit (tested).
+"""
+
+from __future__ import annotations
+
+import csv
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable, Sequence
+
+from ..errors import ConfigError
+from .cell import ConveyorCell
+from .robot import RobotOutput
+
+
+@dataclass(frozen=True, slots=True)
+class TriggerEvent:
+    """A TRIGGER given after step ``sample``."""
+
+    sample: int
+    robot: str
+    frame: str
+    values: tuple[float, ...] | None = None
+    dr_mm: float = 0.0
+    inverse: bool = False
+
+
+def write_encoder_log(path: str | Path, sample_time_s: float,
+                      logs: dict[str, Sequence[int]]) -> Path:
+    path = Path(path)
+    names = list(logs)
+    n = min(len(v) for v in logs.values()) if logs else 0
+    with path.open("w", newline="", encoding="utf-8") as fh:
+        w = csv.writer(fh, lineterminator="\n")
+        w.writerow(["sample", "time_s"] + names)
+        for k in range(n):
+            w.writerow([k, repr(round(k * sample_time_s, 12))] + [int(logs[c][k]) for c in names])
+    return path
+
+
+def read_encoder_log(path: str | Path) -> dict[str, list[int]]:
+    """{source name: raw counts per sample}.  Rows must be samples 0, 1, 2, ... in order."""
+    path = Path(path)
+    rows = list(csv.reader(path.read_text(encoding="utf-8").splitlines()))
+    rows = [r for r in rows if r and not r[0].lstrip().startswith("#")]
+    if not rows:
+        raise ConfigError("the encoder log is empty (expected a header row)", file=str(path),
+                          line=1)
+    header = [c.strip() for c in rows[0]]
+    if header[:2] != ["sample", "time_s"] or len(header) < 3:
+        raise ConfigError("header must be: sample, time_s, <source name>...", file=str(path),
+                          line=1, key=header[0] if header else None)
+    out: dict[str, list[int]] = {c: [] for c in header[2:]}
+    for i, r in enumerate(rows[1:], start=2):
+        if len(r) != len(header):
+            raise ConfigError(f"expected {len(header)} values, got {len(r)}", file=str(path),
+                              line=i)
+        try:
+            k = int(r[0])
+        except ValueError:
+            raise ConfigError(f"not an integer: {r[0]!r}", file=str(path), line=i,
+                              key="sample") from None
+        if k != i - 2:
+            raise ConfigError(f"sample {k} out of order (expected {i - 2})", file=str(path),
+                              line=i, key="sample")
+        for c, cell in zip(header[2:], r[2:]):
+            try:
+                out[c].append(int(cell))
+            except ValueError:
+                raise ConfigError(f"not an integer count: {cell!r}", file=str(path), line=i,
+                                  key=c) from None
+    return out
+
+
+def write_trigger_log(path: str | Path, events: Sequence[TriggerEvent]) -> Path:
+    path = Path(path)
+    with path.open("w", newline="", encoding="utf-8") as fh:
+        w = csv.writer(fh, lineterminator="\n")
+        w.writerow(["sample", "robot", "frame", "values", "dr_mm", "inverse"])
+        for e in events:
+            vals = "" if e.values is None else ";".join(repr(float(v)) for v in e.values)
+            w.writerow([e.sample, e.robot, e.frame, vals, repr(float(e.dr_mm)), int(e.inverse)])
+    return path
+
+
+def read_trigger_log(path: str | Path) -> list[TriggerEvent]:
+    path = Path(path)
+    rows = list(csv.reader(path.read_text(encoding="utf-8").splitlines()))
+    rows = [r for r in rows if r and not r[0].lstrip().startswith("#")]
+    expected = ["sample", "robot", "frame", "values", "dr_mm", "inverse"]
+    if not rows or [c.strip() for c in rows[0]] != expected:
+        raise ConfigError(f"header must be: {', '.join(expected)}", file=str(path), line=1)
+    out = []
+    for i, r in enumerate(rows[1:], start=2):
+        try:
+            vals = tuple(float(x) for x in r[3].split(";")) if r[3].strip() else None
+            out.append(TriggerEvent(int(r[0]), r[1], r[2], vals, float(r[4]), bool(int(r[5]))))
+        except (ValueError, IndexError) as exc:
+            raise ConfigError(f"invalid trigger row: {exc}", file=str(path), line=i) from None
+    return out
+
+
+def replay(cell: ConveyorCell, triggers: Sequence[TriggerEvent], n_samples: int,
+           on_sample: Callable[[ConveyorCell, dict[str, RobotOutput]], None] | None = None
+           ) -> list[dict[str, RobotOutput]]:
+    """Step ``cell`` ``n_samples`` times, giving each TRIGGER after its sample.
+
+    ``on_sample(cell, outputs)`` runs after every step (e.g. a robot program; it must be
+    deterministic too).  Triggers for sample 0 are given before the first step.
+    """
+    by_sample: dict[int, list[TriggerEvent]] = {}
+    for e in triggers:
+        by_sample.setdefault(e.sample, []).append(e)
+    frames = {f.name: f for f in cell.frames}
+    outputs = []
+
+    def give(k: int) -> None:
+        for e in by_sample.get(k, ()):
+            cell.robot(e.robot).trigger(frames.get(e.frame, e.frame), values=e.values,
+                                        dr_mm=e.dr_mm, inverse=e.inverse)
+
+    give(cell.k)
+    for _ in range(n_samples):
+        out = cell.step()
+        outputs.append(out)
+        if on_sample is not None:
+            on_sample(cell, out)
+        give(cell.k)
+    return outputs

@@ -1,0 +1,173 @@
+"""Master sources of a moving frame (overview page, "Moving Frame": "The input position (master
+source) is usually taken as an external source (external encoder), simulated axis or even
+another moving frame position").
+
+A source is read once per sample: ``read(k, t_s)`` returns :class:`SourceState` (position,
+velocity, acceleration in *source units*, e.g. encoder counts; the frame scales them to mm or
+deg).  Sources are deterministic: the same calls give the same values.
+
+- :class:`SimulatedAxis` - a function of time (exact position, velocity, acceleration).
+- :class:`EncoderSource` - raw counts (pushed by the shell, or from a callable/log), unwrapped
+  with :func:`controller.tracking.unwrap_counts` (counter modulus), velocity and acceleration
+  estimated with :class:`controller.tracking.MasterEstimator`; keeps the raw counts it was
+  given (:attr:`EncoderSource.log`) for a deterministic replay.
+- :class:`FrameSource` - another moving frame's DOF coordinate [mm or deg] (read after that
+  frame was updated in the same sample).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Callable, Protocol, Sequence
+
+from ..errors import ParameterError, StateError
+from ..tracking import MasterEstimator, unwrap_counts
+
+if TYPE_CHECKING:
+    from .frame import MovingFrame
+
+
+@dataclass(frozen=True, slots=True)
+class SourceState:
+    """A master source value [source unit] and its rates [unit/s, unit/s^2]."""
+
+    pos: float
+    vel: float = 0.0
+    acc: float = 0.0
+
+    def extrapolated(self, dt_s: float, with_acceleration: bool = False) -> "SourceState":
+        """Moved on by ``dt_s`` at constant velocity (or constant acceleration)."""
+        if with_acceleration:
+            return SourceState(self.pos + self.vel * dt_s + 0.5 * self.acc * dt_s * dt_s,
+                               self.vel + self.acc * dt_s, self.acc)
+        return SourceState(self.pos + self.vel * dt_s, self.vel, 0.0)
+
+
+class MasterSource(Protocol):
+    name: str
+
+    def read(self, k: int, t_s: float) -> SourceState:
+        """The source at sample k (time t_s = k*T) [source units]."""
+        ...
+
+
+class SimulatedAxis:
+    """A simulated master axis: ``fn(t_s) -> (pos, vel, acc)`` [unit, unit/s, unit/s^2]."""
+
+    def __init__(self, fn: Callable[[float], tuple[float, float, float]],
+                 name: str = "axis") -> None:
+        self.fn = fn
+        self.name = name
+
+    @classmethod
+    def constant_speed(cls, speed: float, start: float = 0.0, name: str = "axis"
+                       ) -> "SimulatedAxis":
+        """pos = start + speed*t [unit, unit/s]."""
+        return cls(lambda t: (start + speed * t, speed, 0.0), name)
+
+    @classmethod
+    def from_profile(cls, profile, name: str = "axis") -> "SimulatedAxis":
+        """From an object with ``state(t) -> MotionState`` (its x component), e.g.
+        :class:`controller.simulate.master.SegmentProfile`."""
+        def fn(t: float) -> tuple[float, float, float]:
+            s = profile.state(t)
+            return s.pos[0], s.vel[0], s.acc[0]
+        return cls(fn, name)
+
+    def read(self, k: int, t_s: float) -> SourceState:
+        p, v, a = self.fn(t_s)
+        return SourceState(float(p), float(v), float(a))
+
+
+class EncoderSource:
+    """An incremental/absolute encoder in counts, wrapping at ``modulus`` (0: no wrap).
+
+    Each sample's raw count comes from :meth:`push` (the shell) or, if nothing was pushed,
+    from ``counts(k)`` (a callable, e.g. a recorded log).  The counts are unwrapped against
+    the previous one (``unwrap_counts``: the step between two samples must stay below half
+    the modulus) and fed to a :class:`MasterEstimator` (``window`` samples, quadratic fit,
+    ``lead_samples`` ahead) for velocity and acceleration [counts/s, counts/s^2].
+    """
+
+    def __init__(self, sample_time_s: float, *, modulus: int = 0,
+                 counts: Callable[[int], int] | Sequence[int] | None = None, window: int = 8,
+                 lead_samples: float = 0.0, name: str = "encoder") -> None:
+        if int(modulus) != modulus or modulus < 0:
+            raise ParameterError(f"encoder modulus (={modulus!r}) must be an integer >= 0")
+        self.modulus = int(modulus)
+        self.name = name
+        if counts is not None and not callable(counts):
+            seq = list(counts)
+
+            def from_log(k: int, seq=seq) -> int:
+                if not 0 <= k < len(seq):
+                    raise StateError(f"encoder {name!r}: the log has no sample {k} "
+                                     f"(it holds samples 0...{len(seq) - 1})")
+                return seq[k]
+            counts = from_log
+        self._counts = counts
+        self._pending: int | None = None
+        self._last: int | None = None
+        self._est = MasterEstimator(sample_time_s, window=window, lead_samples=lead_samples)
+        #: the raw counts read so far, one per sample (for recording and replay)
+        self.log: list[int] = []
+
+    def push(self, raw_counts: int) -> None:
+        """The raw count of the next sample (overrides ``counts`` for that sample)."""
+        self._pending = int(raw_counts)
+
+    def read(self, k: int, t_s: float) -> SourceState:
+        if self._pending is not None:
+            raw, self._pending = self._pending, None
+        elif self._counts is not None:
+            raw = int(self._counts(k))
+        else:
+            raise StateError(f"encoder {self.name!r}: no count pushed for sample {k}")
+        self.log.append(raw)
+        if self._last is None:
+            unwrapped = raw
+        else:
+            unwrapped = unwrap_counts(self._last, raw, self.modulus)
+        self._last = unwrapped
+        self._est.push(float(unwrapped))
+        e = self._est.estimate()
+        return SourceState(e.pos, e.vel, e.acc)
+
+
+def quantise_counts(value_units: float, counts_per_unit: float, modulus: int = 0) -> int:
+    """A raw encoder count for a position (rounded, wrapped at ``modulus``)."""
+    c = int(math.floor(value_units * counts_per_unit + 0.5))
+    return c % modulus if modulus else c
+
+
+class FrameSource:
+    """Another moving frame's DOF coordinate as a master source [mm or deg].
+
+    The coordinate is the other frame's scaled master relative to ``reference`` (its source
+    value at coordinate 0, default 0): ``scale_i * (m_i - reference)``.
+    """
+
+    def __init__(self, frame: "MovingFrame", dof: int = 0, reference: float = 0.0,
+                 name: str | None = None) -> None:
+        if not 0 <= dof < frame.nof:
+            raise ParameterError(f"dof (={dof!r}) must be in [0...{frame.nof - 1}] for frame "
+                                 f"{frame.name!r}")
+        self.frame = frame
+        self.dof = dof
+        self.reference = float(reference)
+        self.name = name or f"{frame.name}[{dof}]"
+
+    def read(self, k: int, t_s: float) -> SourceState:
+        m = self.frame.master
+        if m is None:
+            raise StateError(f"frame {self.frame.name!r} must be updated before the frame that "
+                             f"uses it as a master source")
+        geo = self.frame.geometry()
+        trig = [0.0] * geo.nof
+        vals = [x.pos for x in m]
+        trig[self.dof] = self.reference
+        c = geo.coords(vals, trig)[self.dof]
+        cd = geo.rates([x.vel for x in m])[self.dof]
+        cdd = geo.rates([x.acc for x in m])[self.dof]
+        return SourceState(c, cd, cdd)

@@ -1,0 +1,109 @@
+"""The trigger ring buffer of a robot (overview page, Functional Changes items 3 and 4).
+
+"The trigger values will be stored in a ring buffer ... with additional information indicating
+the relevant Moving Frame for each value entered.  The ring buffer is an element of robot."
+
+- Each entry (:class:`TriggerEntry`, one item) is tagged with its moving frame's name and holds
+  the master source values at the trigger (one per DOF, source units), the radius offset dR
+  [mm] (rotary frames) and the window direction flag.
+- ``TRIGGER <robot> {NDOF = <index> Value = <value>} {MasterFrame = <MovingFrame>}`` and
+  ``NEXTITEM <robot> {MasterFrame = <MovingFrame>}`` are
+  :meth:`controller.conveyor.robot.RobotGroup.trigger` / ``.nextitem``; which frame an entry
+  belongs to is resolved there (an error when none is named and the robot is engaged to
+  several frames).
+- An entry for a frame not linked to the robot is kept, marked (``linked = False``).
+- NEXTITEM works on the entries of its frame only; entries of other frames are skipped (kept).
+- ``slave = 0`` deletes every entry (:meth:`TriggerBuffer.clear`).
+- A full buffer rejects the new entry with :class:`TriggerBufferFull`: never a silent drop.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass, replace
+from typing import Iterator
+
+from ..errors import ParameterError
+from .errors import TriggerBufferFull
+
+
+@dataclass(frozen=True, slots=True)
+class TriggerEntry:
+    """One item: ``frame`` (name), ``values`` per DOF [source units], ``dr_mm``, ``inverse``.
+
+    ``id``: running number per robot; ``sample``: the robot sample of the TRIGGER command;
+    ``linked``: whether the frame was linked to the robot when the entry was made.
+    """
+
+    id: int
+    frame: str
+    values: tuple[float, ...]
+    dr_mm: float = 0.0
+    inverse: bool = False
+    sample: int = 0
+    linked: bool = True
+
+    def with_(self, **changes) -> "TriggerEntry":
+        return replace(self, **changes)
+
+
+class TriggerBuffer:
+    """A bounded FIFO of :class:`TriggerEntry` (``capacity`` entries)."""
+
+    def __init__(self, capacity: int = 32, owner: str = "robot") -> None:
+        if int(capacity) != capacity or capacity < 1:
+            raise ParameterError(f"trigger buffer capacity (={capacity!r}) must be an "
+                                 "integer >= 1")
+        self.capacity = int(capacity)
+        self.owner = owner
+        self._entries: deque[TriggerEntry] = deque()
+
+    def __len__(self) -> int:
+        return len(self._entries)
+
+    def __iter__(self) -> Iterator[TriggerEntry]:
+        return iter(tuple(self._entries))
+
+    @property
+    def full(self) -> bool:
+        return len(self._entries) >= self.capacity
+
+    def add(self, entry: TriggerEntry) -> TriggerEntry:
+        if self.full:
+            raise TriggerBufferFull(
+                f"robot {self.owner!r}: trigger buffer full ({self.capacity} entries); the "
+                f"trigger of frame {entry.frame!r} (values {entry.values!r}) is rejected - "
+                "take items with NEXTITEM or enlarge the buffer")
+        self._entries.append(entry)
+        return entry
+
+    def entries(self, frame: str | None = None) -> tuple[TriggerEntry, ...]:
+        """Entries (oldest first), only those of ``frame`` if given."""
+        return tuple(e for e in self._entries if frame is None or e.frame == frame)
+
+    def current(self, frame: str) -> TriggerEntry | None:
+        """The oldest entry of ``frame`` (the item being tracked), or None."""
+        for e in self._entries:
+            if e.frame == frame:
+                return e
+        return None
+
+    def nextitem(self, frame: str) -> TriggerEntry | None:
+        """Delete the oldest entry of ``frame`` (skipping other frames'); returns it or None."""
+        e = self.current(frame)
+        if e is not None:
+            self._entries.remove(e)
+        return e
+
+    def remove(self, entry: TriggerEntry) -> bool:
+        try:
+            self._entries.remove(entry)
+            return True
+        except ValueError:
+            return False
+
+    def clear(self) -> int:
+        """Delete every entry (``slave = 0``); returns how many were deleted."""
+        n = len(self._entries)
+        self._entries.clear()
+        return n

@@ -1,0 +1,742 @@
+"""Conveyor scenarios of ``cantrack simulate``: a moving frame, items, a robot doing picks.
+
+A scenario file with a top-level ``conveyor:`` key is a conveyor scenario (the tracking
+scenarios without it are unchanged).  Units: mm, mm/s, deg, s; master values in "master
+units" (what the conveyor's axis counts: mm of belt, deg of table, ...).  ``*`` = required::
+
+    name: "belt, 300 mm/s"
+    duration_s*: 8.0
+    tracker*:                        # the tracking scenarios' section (TrackerParams fields;
+      sample_time_s*: 0.002          #   ``mode`` is ignored: conveyor.robot.slave decides)
+      planner*: softmc
+      sync_trans: {vel: 2000, acc: 20000, jerk: 400000}
+    conveyor*:
+      frame*:
+        name: cnv                    # default cnv
+        type: linear                 # linear | rotary | rotary_decoupled | 0 | 1 | 2
+        origin: [0, 0, 0]            # linear: MF.zero (the trigger point), a position or
+                                     #   {position: [..], axis: [..], angle_deg: ..}
+        direction: [1, 0, 0]         # linear: the direction of the DOF
+        scale_mm_per_unit: 1.0       # linear: mm per master unit
+        upstream: {position: [600, -400, 0], axis: [0, 0, 1], angle_deg: 0}   # rotary
+        arc_point: [1000, 0, 0]      # rotary
+        downstream: [600, 400, 0]    # rotary
+        up_master: 0                 # rotary: master value at UpStream[1]
+        down_master: 180             # rotary: master value at DownStream[1]
+        window*: {upstream: 100, downstream: 900}   # relative to the trigger: mm / deg
+        limits: {VelocityMaxTrans: 1000, AccelerationMaxTrans: 1000, ...}   # page names
+      master*:                       # the conveyor's master axis [master units]
+        start: 0                     # value at t = 0
+        speed: 300                   # constant speed [unit/s] ... or
+        profile: {segments: [...]}   # ... the tracking scenarios' segment master (x used)
+        encoder: {counts_per_unit: 100, modulus: 65536, window: 16}   # optional: counts,
+                                     #   wrap-around, estimated velocity (MasterEstimator)
+        log: encoder.csv             # replay a recorded encoder log (needs encoder)
+      items*:                        # the item sensor: one of
+        trigger_times: [0.1, 0.9]    #   sensor times [s]
+        radius_offsets_mm: [0, -30]  #   optional, one per time (rotary: dR)
+        csv: items.csv               #   time_s[, dr_mm][, inverse]
+        log: triggers.csv            #   replay: sample, robot, frame, values, dr_mm, inverse
+      robot*:
+        name: robot
+        start*: [300, 350, 100]      # TCP (world) at t = 0: a position or a location
+        base: {position: [..], axis: [..], angle_deg: ..}    # robot base frame
+        tool: {position: [..], axis: [..], angle_deg: ..}    # tool frame
+        slave: 5                     # 3 | 5
+        buffer_capacity: 32
+        motion: {vel: 800, acc: 8000, jerk: 200000, rot_vel: 180, rot_acc: 1800,
+                 rot_jerk: 36000}
+      program:                       # the pick program (see PickProgram)
+        approach_mm: 50              # hover height above the item before going down
+        dwell_s: 0.1                 # synchronised at the item ("grip")
+        place: [300, 600, 100]       # where picked items go (world TCP)
+        predict: true                # ask "can it catch this item?" first, skip if not
+
+Errors are :class:`controller.errors.ConfigError` naming file, line and key (the same
+machinery as the tracking scenarios).
+
+The run (:func:`run_conveyor`): a :class:`controller.conveyor.ConveyorCell` with the frame
+and the robot; per sample the item sensor's TRIGGERs (latching the exact master value at the
+sensor time, or the logged values), the program's commands, then one step.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..conveyor import (CatchPrediction, ConveyorCell, EncoderSource, Event, FrameLimits,
+                        Location, MotionLimits, MovingFrame, RobotGroup, SimulatedAxis,
+                        TriggerBufferFull, Window)
+from ..conveyor.frame import LINEAR, ROTARY, ROTARY_DECOUPLED, TYPE_NAMES
+from ..conveyor.replay import (TriggerEvent, read_encoder_log, read_trigger_log,
+                               write_encoder_log, write_trigger_log)
+from ..conveyor.sources import quantise_counts
+from ..conveyor.telemetry import ItemRecord
+from ..errors import ConfigError, ParameterError
+from ..tracking import Imfs, Mode, TrackerParams
+
+__all__ = ["ConveyorScenario", "ConveyorResult", "PickProgram", "parse_conveyor",
+           "run_conveyor", "write_conveyor_trace", "write_logs"]
+
+_TYPES = {"linear": LINEAR, "rotary": ROTARY, "rotary_decoupled": ROTARY_DECOUPLED,
+          0: LINEAR, 1: ROTARY, 2: ROTARY_DECOUPLED}
+
+
+# -- the scenario ------------------------------------------------------------------------
+@dataclass(frozen=True)
+class FrameSpec:
+    name: str
+    type: int
+    window: Window
+    limits: FrameLimits
+    origin: Location = Location()
+    direction: tuple[float, float, float] = (1.0, 0.0, 0.0)
+    scale_mm_per_unit: float = 1.0
+    upstream: Location | None = None
+    arc_point: tuple[float, float, float] | None = None
+    downstream: tuple[float, float, float] | None = None
+    up_master: float = 0.0
+    down_master: float | None = None
+
+
+@dataclass(frozen=True)
+class EncoderSpec:
+    counts_per_unit: float
+    modulus: int = 0
+    window: int = 16
+
+
+@dataclass(frozen=True)
+class MasterSpec:
+    start: float = 0.0
+    speed: float = 0.0
+    profile: Any = None  #: a SegmentMaster (x component used) or None
+    encoder: EncoderSpec | None = None
+    log: tuple[int, ...] | None = None
+    log_path: Path | None = None
+
+
+@dataclass(frozen=True)
+class ItemSpec:
+    """One item: sensor time [s] (or the logged sample) and what the TRIGGER records."""
+
+    time_s: float
+    dr_mm: float = 0.0
+    inverse: bool = False
+    sample: int | None = None
+    values: tuple[float, ...] | None = None
+
+
+@dataclass(frozen=True)
+class RobotSpec:
+    name: str
+    start: Location
+    base: Location = Location()
+    tool: Location = Location()
+    slave: int = 5
+    buffer_capacity: int = 32
+    motion: MotionLimits = MotionLimits()
+
+
+@dataclass(frozen=True)
+class ProgramSpec:
+    approach_mm: float = 50.0
+    dwell_s: float = 0.1
+    place: Location | None = None
+    predict: bool = True
+
+
+@dataclass(frozen=True)
+class ConveyorScenario:
+    params: TrackerParams
+    duration_s: float
+    frame: FrameSpec
+    master: MasterSpec
+    items: tuple[ItemSpec, ...]
+    robot: RobotSpec
+    program: ProgramSpec
+    name: str = ""
+    source: Path | None = None
+
+    @property
+    def sample_time_s(self) -> float:
+        return self.params.sample_time_s
+
+    @property
+    def n_samples(self) -> int:
+        return max(1, round(self.duration_s / self.params.sample_time_s))
+
+
+# -- parsing (uses the tracking scenarios' validation helpers) ----------------------------
+def _location(node, key: str, default: Any = None) -> Location | None:
+    from .scenario import _Node
+
+    if not node.has(key):
+        if default is None and key in ("start",):
+            node.raw(key)
+        return default
+    value = node.raw(key)
+    if isinstance(value, list):
+        return Location(node.vector(key, unit="mm"))
+    sub = _Node(node.ctx, value, node.key(key), node.line_of(key))
+    sub.check_keys(("position", "axis", "angle_deg"))
+    pos = sub.vector("position", unit="mm")
+    angle = sub.number("angle_deg", 0.0, unit="deg")
+    axis = sub.vector("axis", (0.0, 0.0, 1.0))
+    try:
+        return Location.from_axis_angle(pos, axis, angle)
+    except ParameterError as exc:
+        raise sub.error("axis", str(exc)) from None
+
+
+def _frame(node) -> FrameSpec:
+    node.check_keys(("name", "type", "origin", "direction", "scale_mm_per_unit", "upstream",
+                     "arc_point", "downstream", "up_master", "down_master", "window",
+                     "limits"))
+    name = node.string("name", "cnv")
+    t = node.raw("type", "linear")
+    key = t.lower() if isinstance(t, str) else t
+    if isinstance(t, bool) or key not in _TYPES:
+        raise node.error("type", f"must be linear | rotary | rotary_decoupled | 0 | 1 | 2, "
+                                 f"got {t!r}")
+    ftype = _TYPES[key]
+    w = node.section("window", required=True)
+    w.check_keys(("upstream", "downstream"))
+    unit = "mm" if ftype == LINEAR else "deg"
+    up = w.number("upstream", unit=unit)
+    down = w.number("downstream", unit=unit)
+    if not up < down:
+        raise w.error("downstream", f"value {down!r} is out of range: must be > upstream "
+                                    f"({up!r}) {unit}")
+    window = Window.single(up, down)
+    limits = FrameLimits()
+    ln = node.section("limits")
+    if ln is not None:
+        names = [f for f in FrameLimits.__dataclass_fields__]
+        ln.check_keys(names)
+        values = {f: ln.number(f, getattr(limits, f), lo=0.0, lo_open=True) for f in names}
+        limits = FrameLimits(**values)
+    if ftype == LINEAR:
+        for k in ("upstream", "arc_point", "downstream", "up_master", "down_master"):
+            if node.has(k):
+                raise node.error(k, "is a rotary frame key (type: rotary); a linear frame "
+                                    "uses origin, direction, scale_mm_per_unit")
+        scale = node.number("scale_mm_per_unit", 1.0, unit="mm per master unit")
+        if scale == 0.0:
+            raise node.error("scale_mm_per_unit", "must not be 0")
+        from .scenario import _unit_vector
+
+        return FrameSpec(name, ftype, window, limits, _location(node, "origin", Location()),
+                         _unit_vector(node, "direction", (1.0, 0.0, 0.0)), scale)
+    for k in ("origin", "direction", "scale_mm_per_unit"):
+        if node.has(k):
+            raise node.error(k, "is a linear frame key; a rotary frame uses upstream, "
+                                "arc_point, downstream, up_master, down_master")
+    upstream = _location(node, "upstream", None)
+    if upstream is None:
+        node.raw("upstream")
+    arc_point = node.vector("arc_point", unit="mm")
+    downstream = node.vector("downstream", unit="mm")
+    up_master = node.number("up_master", 0.0)
+    down_master = node.number("down_master")
+    if down_master == up_master:
+        raise node.error("down_master", f"must differ from up_master ({up_master!r})")
+    spec = FrameSpec(name, ftype, window, limits, upstream=upstream, arc_point=arc_point,
+                     downstream=downstream, up_master=up_master, down_master=down_master)
+    try:
+        from ..conveyor import arc_from_points
+
+        arc_from_points(upstream.pos, arc_point, downstream)
+    except ParameterError as exc:
+        raise node.error("arc_point", str(exc)) from None
+    return spec
+
+
+def _master(node) -> MasterSpec:
+    from .scenario import _segment_master
+
+    node.check_keys(("start", "speed", "profile", "encoder", "log"))
+    kinds = [k for k in ("speed", "profile", "log") if node.has(k)]
+    if len(kinds) != 1:
+        raise node.error(kinds[1] if len(kinds) > 1 else "speed",
+                         "give exactly one of speed, profile, log")
+    start = node.number("start", 0.0)
+    enc = None
+    en = node.section("encoder")
+    if en is not None:
+        en.check_keys(("counts_per_unit", "modulus", "window"))
+        enc = EncoderSpec(en.number("counts_per_unit", lo=0.0, lo_open=True),
+                          en.number("modulus", 0, lo=0, integer=True),
+                          en.number("window", 16, lo=3, hi=10000, integer=True))
+    if node.has("log"):
+        if enc is None:
+            raise node.error("log", "an encoder log needs the encoder section "
+                                    "(counts_per_unit, modulus)")
+        path = Path(node.string("log"))
+        if not path.is_absolute():
+            path = node.ctx.base_dir / path
+        try:
+            logs = read_encoder_log(path)
+        except OSError as exc:
+            raise node.error("log", f"cannot read the encoder log {str(path)!r}: "
+                                    f"{exc.strerror or exc}") from None
+        if len(logs) != 1:
+            raise ConfigError(f"the encoder log must have one source column, found "
+                              f"{len(logs)}", file=str(path), line=1)
+        counts = tuple(next(iter(logs.values())))
+        return MasterSpec(start, 0.0, None, enc, counts, path)
+    if node.has("profile"):
+        prof = node.section("profile")
+        return MasterSpec(start, 0.0, _segment_master(prof), enc)
+    return MasterSpec(start, node.number("speed", unit="master units/s"), None, enc)
+
+
+def _items(node, duration_s: float) -> tuple[ItemSpec, ...]:
+    from .scenario import _check_number
+
+    node.check_keys(("trigger_times", "radius_offsets_mm", "csv", "log"))
+    kinds = [k for k in ("trigger_times", "csv", "log") if node.has(k)]
+    if len(kinds) != 1:
+        raise node.error(kinds[1] if len(kinds) > 1 else "trigger_times",
+                         "give exactly one of trigger_times, csv, log")
+    if node.has("trigger_times"):
+        times = []
+        for v, line, path in node.items("trigger_times"):
+            times.append(_check_number(v, lambda m, line=line, path=path:
+                                       node.ctx.error(m, line, path), lo=0.0, hi=duration_s,
+                                       hi_open=True, unit="s (the scenario's duration)"))
+        drs = [0.0] * len(times)
+        if node.has("radius_offsets_mm"):
+            items = node.items("radius_offsets_mm")
+            if len(items) != len(times):
+                raise node.error("radius_offsets_mm", f"must give one value per trigger time "
+                                                      f"({len(times)}), got {len(items)}")
+            drs = [_check_number(v, lambda m, line=line, path=path:
+                                 node.ctx.error(m, line, path), unit="mm")
+                   for v, line, path in items]
+        if times != sorted(times):
+            raise node.error("trigger_times", "times must be in increasing order")
+        return tuple(ItemSpec(t, dr) for t, dr in zip(times, drs))
+    name = node.string(kinds[0])
+    path = Path(name)
+    if not path.is_absolute():
+        path = node.ctx.base_dir / path
+    if kinds[0] == "log":
+        try:
+            events = read_trigger_log(path)
+        except OSError as exc:
+            raise node.error("log", f"cannot read the trigger log {str(path)!r}: "
+                                    f"{exc.strerror or exc}") from None
+        return tuple(ItemSpec(0.0, e.dr_mm, e.inverse, e.sample, e.values) for e in events)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise node.error("csv", f"cannot read the items CSV {str(path)!r}: "
+                                f"{exc.strerror or exc}") from None
+    rows = [(i + 1, r) for i, r in enumerate(csv.reader(text.splitlines()))
+            if r and any(c.strip() for c in r) and not r[0].lstrip().startswith("#")]
+    if not rows:
+        raise ConfigError("the items CSV is empty (expected a header row)", file=str(path),
+                          line=1)
+    hl, header = rows[0]
+    cols = [c.strip().lower() for c in header]
+    allowed = ("time_s", "dr_mm", "inverse")
+    for c in cols:
+        if c not in allowed:
+            raise ConfigError(f"unknown column (columns: {', '.join(allowed)})",
+                              file=str(path), line=hl, key=c)
+    if "time_s" not in cols:
+        raise ConfigError("required column missing", file=str(path), line=hl, key="time_s")
+    out = []
+    prev = -math.inf
+    for line, r in rows[1:]:
+        if len(r) != len(cols):
+            raise ConfigError(f"expected {len(cols)} values, got {len(r)}", file=str(path),
+                              line=line)
+        vals = {}
+        for c, cell in zip(cols, r):
+            try:
+                vals[c] = float(cell)
+            except ValueError:
+                raise ConfigError(f"not a number: {cell.strip()!r}", file=str(path),
+                                  line=line, key=c) from None
+        t = vals["time_s"]
+        if not (0.0 <= t < duration_s) or t < prev:
+            raise ConfigError(f"time {t!r} s must be in [0...{duration_s:g}) s and not before "
+                              "the previous row", file=str(path), line=line, key="time_s")
+        prev = t
+        out.append(ItemSpec(t, vals.get("dr_mm", 0.0), bool(vals.get("inverse", 0.0))))
+    return tuple(out)
+
+
+def _robot(node) -> RobotSpec:
+    node.check_keys(("name", "start", "base", "tool", "slave", "buffer_capacity", "motion"))
+    slave = node.number("slave", 5, integer=True)
+    if slave not in (3, 5):
+        raise node.error("slave", f"value {slave!r} is out of range: must be 3 or 5")
+    ml = MotionLimits()
+    mn = node.section("motion")
+    if mn is not None:
+        names = ("vel", "acc", "jerk", "rot_vel", "rot_acc", "rot_jerk")
+        mn.check_keys(names)
+        ml = MotionLimits(**{k: mn.number(k, getattr(ml, k), lo=0.0, lo_open=True)
+                             for k in names})
+    return RobotSpec(node.string("name", "robot"), _location(node, "start"),
+                     _location(node, "base", Location()), _location(node, "tool", Location()),
+                     slave, node.number("buffer_capacity", 32, lo=1, hi=100000, integer=True),
+                     ml)
+
+
+def _program(node) -> ProgramSpec:
+    if node is None:
+        return ProgramSpec()
+    node.check_keys(("approach_mm", "dwell_s", "place", "predict"))
+    return ProgramSpec(node.number("approach_mm", 50.0, lo=0.0, unit="mm"),
+                       node.number("dwell_s", 0.1, lo=0.0, unit="s"),
+                       _location(node, "place", None), node.boolean("predict", True))
+
+
+def parse_conveyor(root, ctx, source: Path | None) -> ConveyorScenario:
+    """Validate a conveyor scenario (``root``: the scenario's top-level node)."""
+    from .scenario import MAX_SAMPLES, _tracker_params
+
+    root.check_keys(("name", "duration_s", "tracker", "conveyor"))
+    name = root.string("name", "")
+    params = _tracker_params(root.section("tracker", required=True))
+    duration = root.number("duration_s", lo=0.0, lo_open=True, unit="s")
+    n = round(duration / params.sample_time_s)
+    if n < 1 or n > MAX_SAMPLES:
+        raise root.error("duration_s", f"the run has {n} samples: must be in "
+                                       f"[1...{MAX_SAMPLES}]")
+    cn = root.section("conveyor", required=True)
+    cn.check_keys(("frame", "master", "items", "robot", "program"))
+    frame = _frame(cn.section("frame", required=True))
+    master = _master(cn.section("master", required=True))
+    if master.log is not None and len(master.log) < n + 1:
+        raise cn.error("master", f"the encoder log has {len(master.log)} samples, the run "
+                                 f"needs {n + 1} (duration {duration:g} s)")
+    items = _items(cn.section("items", required=True), duration)
+    robot = _robot(cn.section("robot", required=True))
+    program = _program(cn.section("program"))
+    return ConveyorScenario(params, float(duration), frame, master, items, robot, program,
+                            name, source)
+
+
+# -- the pick program ----------------------------------------------------------------------
+class PickProgram:
+    """A small robot program, one item at a time (deterministic, sample-stepped).
+
+    idle: the oldest item of the frame in the buffer; with ``predict`` ask
+    :meth:`RobotGroup.can_catch` and skip the item (NEXTITEM) when the answer is no; else
+    ``MasterFrame = frame`` and ``MOVES <MF>.zero`` raised by ``approach_mm`` (the item's
+    orientation) -> approach: once synchronised and the move is done, go down
+    ``approach_mm`` (relative) -> grip: wait ``dwell_s`` synchronised (the pick) -> lift:
+    up again, then ``NEXTITEM`` and ``MasterFrame = none`` and ``MOVES place`` -> place ->
+    idle.  "Item missed" (30238) or the item leaving the window during the pick: the motions
+    go on as they are (item 11), then ``MOVES place`` once they are done.
+    """
+
+    def __init__(self, robot: RobotGroup, frame: MovingFrame, spec: ProgramSpec,
+                 slave: int) -> None:
+        self.robot = robot
+        self.frame = frame
+        self.spec = spec
+        self.slave = slave
+        self.place = spec.place if spec.place is not None else robot.setpoint
+        self.state = "idle"
+        self.item = None
+        self.until = 0
+        self.picks: dict[int, float] = {}
+        self.predictions: dict[int, CatchPrediction] = {}
+        self.skipped: dict[int, str] = {}
+        self.log: list[tuple[int, str, int | None]] = []
+
+    def _say(self, what: str) -> None:
+        self.log.append((self.robot.k, what, self.item.id if self.item is not None else None))
+
+    def tick(self, events: tuple[Event, ...]) -> None:
+        r, f, sp = self.robot, self.frame, self.spec
+        v = r.virtual
+        for e in events:
+            if self.item is not None and e.item == self.item.id and \
+                    e.kind in ("item_missed", "item_left", "tracker_error") and \
+                    self.state in ("approach", "descend", "grip"):
+                self._say(f"{e.kind}: finishing the motions as they are")
+                self.state = "recover"
+        if self.state == "idle":
+            item = r.buffer.current(f.name)
+            if item is None:
+                return
+            self.item = item
+            if sp.predict:
+                p = r.can_catch(f, item)
+                self.predictions[item.id] = p
+                if not p.can_catch:
+                    self.skipped[item.id] = p.reason
+                    self._say(f"skip: {p.reason}")
+                    r.nextitem(f)
+                    self.item = None
+                    return
+            if r.master_frame is not f:
+                r.set_master_frame(f, self.slave)
+            zero = f.zero(item)
+            hover = Location(tuple(a + b for a, b in zip(zero.pos, (0.0, 0.0, sp.approach_mm))),
+                             zero.ori)
+            r.moves(hover, name=f"approach item {item.id}")
+            self._say("approach")
+            self.state = "approach"
+        elif self.state == "approach":
+            if r.imfs == Imfs.SYNCHRONIZED and not v.busy:
+                r.moves_rel((0.0, 0.0, -sp.approach_mm), name=f"down to item {self.item.id}")
+                self.state = "descend"
+        elif self.state == "descend":
+            if not v.busy and r.imfs == Imfs.SYNCHRONIZED:
+                self.until = r.k + round(sp.dwell_s / r.T)
+                self.state = "grip"
+        elif self.state == "grip":
+            if r.k >= self.until:
+                self.picks[self.item.id] = r.k * r.T
+                self._say("picked")
+                r.moves_rel((0.0, 0.0, sp.approach_mm), name=f"lift item {self.item.id}")
+                self.state = "lift"
+        elif self.state == "lift":
+            if not v.busy:
+                if r.current_item(f) is self.item:
+                    r.nextitem(f)
+                r.master_frame = None
+                r.moves(self.place, name="place")
+                self.state = "place"
+        elif self.state == "recover":
+            if not v.busy:
+                if r.master_frame is not None:
+                    r.master_frame = None
+                r.moves(self.place, name="place")
+                self.state = "place"
+        elif self.state == "place":
+            if not v.busy and r.slave == 0:
+                self.item = None
+                self.state = "idle"
+
+
+# -- the result ------------------------------------------------------------------------------
+@dataclass
+class ConveyorResult:
+    """Arrays over samples 0..N (row 0 = the state before the first step).  Units mm, s."""
+
+    scenario: ConveyorScenario
+    time_s: np.ndarray
+    master_value: np.ndarray          #: the frame's source value [source units]
+    setpoint_pos: np.ndarray          #: (N+1, 3) TCP (world)
+    setpoint_ori: np.ndarray          #: (N+1, 4) quaternion
+    virtual_pos: np.ndarray           #: (N+1, 3) the virtual robot
+    imfs: np.ndarray
+    slave: np.ndarray
+    item: np.ndarray                  #: id of the item the link tracks (0: none)
+    events: list[Event]
+    records: list[ItemRecord]
+    picks: dict[int, float]
+    predictions: dict[int, CatchPrediction]
+    skipped: dict[int, str]
+    item_paths: dict[int, tuple[np.ndarray, np.ndarray]]
+    frame: MovingFrame
+    robot: RobotGroup
+    triggers: list[TriggerEvent] = field(default_factory=list)
+    encoder_log: list[int] | None = None
+
+    @property
+    def sample_time_s(self) -> float:
+        return self.scenario.sample_time_s
+
+    def count(self, status: str) -> int:
+        return sum(1 for r in self.records if r.status.value == status)
+
+    @property
+    def caught(self) -> int:
+        return sum(1 for r in self.records if r.caught)
+
+    @property
+    def missed(self) -> int:
+        return self.count("missed")
+
+
+def _master_fn(m: MasterSpec):
+    if m.profile is not None:
+        from .master import build_profile
+
+        prof = build_profile(m.profile)
+
+        def fn(t: float) -> tuple[float, float, float]:
+            s = prof.state(t)
+            return m.start + s.pos[0] - m.profile.position[0], s.vel[0], s.acc[0]
+        return fn
+    return lambda t: (m.start + m.speed * t, m.speed, 0.0)
+
+
+def run_conveyor(sc: ConveyorScenario) -> ConveyorResult:
+    """Run a validated conveyor scenario."""
+    T = sc.sample_time_s
+    n = sc.n_samples
+    fs, ms = sc.frame, sc.master
+    fn = _master_fn(ms)
+    per_unit = 1.0
+    if ms.encoder is not None:
+        cpu = ms.encoder.counts_per_unit
+        per_unit = cpu
+        if ms.log is not None:
+            counts: Any = list(ms.log)
+        else:
+            counts = lambda k: quantise_counts(fn(k * T)[0], cpu, ms.encoder.modulus)  # noqa
+        source = EncoderSource(T, modulus=ms.encoder.modulus, counts=counts,
+                               window=ms.encoder.window, name="encoder")
+    else:
+        source = SimulatedAxis(fn, "master")
+    if fs.type == LINEAR:
+        frame = MovingFrame(fs.name, [source], directions=[fs.direction],
+                            scales=[fs.scale_mm_per_unit / per_unit], origin=fs.origin,
+                            limits=fs.limits, window=fs.window)
+    else:
+        frame = MovingFrame(fs.name, [source], type=fs.type, upstream=fs.upstream,
+                            arc_point=fs.arc_point, downstream=fs.downstream,
+                            up_master=fs.up_master * per_unit,
+                            down_master=fs.down_master * per_unit, limits=fs.limits,
+                            window=fs.window)
+    rs = sc.robot
+    robot = RobotGroup(rs.name, sc.params.with_(mode=Mode(rs.slave)), start=rs.start,
+                       base=rs.base, tool=rs.tool, motion_limits=rs.motion,
+                       buffer_capacity=rs.buffer_capacity, default_mode=rs.slave)
+    cell = ConveyorCell([frame], [robot])
+    program = PickProgram(robot, frame, sc.program, rs.slave)
+
+    # the item sensor: TRIGGERs after step k, with the exact value at the sensor time
+    by_k: dict[int, list[ItemSpec]] = {}
+    for it in sc.items:
+        k = it.sample if it.sample is not None else int(math.floor(it.time_s / T + 1e-9))
+        by_k.setdefault(k, []).append(it)
+    triggers: list[TriggerEvent] = []
+    rejected: list[Event] = []
+
+    def sense(k: int) -> None:
+        for it in by_k.get(k, ()):
+            if it.values is not None:
+                vals = it.values
+            elif ms.log is not None:
+                vals = frame.source_values()
+            elif ms.encoder is not None:
+                vals = (float(quantise_counts(fn(it.time_s)[0], ms.encoder.counts_per_unit,
+                                              ms.encoder.modulus)),)
+                # an absolute encoder value: unwrap it against the frame's continuous value
+                if ms.encoder.modulus:
+                    from ..tracking import unwrap_counts
+
+                    cur = frame.source_values()[0]
+                    vals = (float(unwrap_counts(int(round(cur)), int(vals[0]),
+                                                ms.encoder.modulus)),)
+            else:
+                vals = (fn(it.time_s)[0],)
+            try:
+                e = robot.trigger(frame, values=vals, dr_mm=it.dr_mm, inverse=it.inverse)
+            except TriggerBufferFull as exc:   # reported, never silently dropped
+                rejected.append(Event(k, "trigger_rejected", frame.name, message=str(exc)))
+                continue
+            triggers.append(TriggerEvent(k, robot.name, frame.name, e.values, e.dr_mm,
+                                         e.inverse))
+
+    sp_pos = [robot.setpoint.pos]
+    sp_ori = [robot.setpoint.ori]
+    vp = [robot.virtual.location.pos]
+    imfs, slave, cur = [0], [0], [0]
+    mval = [frame.master[0].pos]
+    events: list[Event] = []
+    last: tuple[Event, ...] = ()
+    for k in range(n):
+        sense(k)
+        program.tick(last)
+        out = cell.step()[robot.name]
+        last = out.events
+        events.extend(rejected)
+        rejected.clear()
+        events.extend(out.events)
+        sp_pos.append(out.setpoint.pos)
+        sp_ori.append(out.setpoint.ori)
+        vp.append(out.virtual.pos)
+        imfs.append(int(out.imfs))
+        slave.append(out.slave)
+        link = robot.link_for(frame)
+        cur.append(link.item.id if link is not None and link.item is not None else 0)
+        mval.append(frame.master[0].pos)
+
+    mv = np.array(mval)
+    geo = frame.geometry()
+    paths: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+    ts = np.arange(n + 1) * T
+    for t_ev, rec in zip(triggers, [robot.records[i] for i in sorted(robot.records)]):
+        k0 = t_ev.sample
+        end = rec.left_sample if rec.left_sample is not None else n
+        end = min(n, end + round(0.2 / T))
+        ks = np.arange(k0, end + 1, max(1, round(0.01 / T)))
+        pts = []
+        for k in ks:
+            c = geo.coords([mv[k]], t_ev.values)
+            pts.append(geo.point(c, (0.0,) * geo.nof, (0.0,) * geo.nof, t_ev.dr_mm).here.pos)
+        paths[rec.item_id] = (ts[ks], np.array(pts).reshape(-1, 3))
+    return ConveyorResult(
+        scenario=sc, time_s=ts, master_value=mv, setpoint_pos=np.array(sp_pos),
+        setpoint_ori=np.array(sp_ori), virtual_pos=np.array(vp), imfs=np.array(imfs),
+        slave=np.array(slave), item=np.array(cur), events=events,
+        records=[robot.records[i] for i in sorted(robot.records)], picks=program.picks,
+        predictions=program.predictions, skipped=program.skipped, item_paths=paths,
+        frame=frame, robot=robot, triggers=triggers,
+        encoder_log=list(source.log) if isinstance(source, EncoderSource) else None)
+
+
+# -- outputs --------------------------------------------------------------------------------
+CONVEYOR_TRACE_COLUMNS = ("time_s", "master_value", "setpoint_x_mm", "setpoint_y_mm",
+                          "setpoint_z_mm", "setpoint_qw", "setpoint_qx", "setpoint_qy",
+                          "setpoint_qz", "virtual_x_mm", "virtual_y_mm", "virtual_z_mm", "imfs",
+                          "slave", "item", "events")
+
+
+def write_conveyor_trace(result: ConveyorResult, path: str | Path) -> Path:
+    """One row per sample: master value, TCP setpoint (position, quaternion), virtual robot,
+    IMFS, slave, the tracked item's id and the events of that sample (``;``-separated)."""
+    path = Path(path)
+    r = result
+    T = r.sample_time_s
+    by_sample: dict[int, list[str]] = {}
+    for e in r.events:
+        txt = e.kind + (f"({e.item})" if e.item is not None else "") + \
+            (f"[{e.code}]" if e.code else "")
+        by_sample.setdefault(e.sample, []).append(txt)
+    with path.open("w", newline="", encoding="utf-8") as fh:
+        w = csv.writer(fh, lineterminator="\n")
+        w.writerow(CONVEYOR_TRACE_COLUMNS)
+        for k in range(len(r.time_s)):
+            w.writerow([repr(round(k * T, 12)), repr(float(r.master_value[k]))]
+                       + [repr(float(x)) for x in r.setpoint_pos[k]]
+                       + [repr(float(x)) for x in r.setpoint_ori[k]]
+                       + [repr(float(x)) for x in r.virtual_pos[k]]
+                       + [int(r.imfs[k]), int(r.slave[k]), int(r.item[k]),
+                          ";".join(by_sample.get(k, ()))])
+    return path
+
+
+def write_logs(result: ConveyorResult, prefix: str | Path) -> tuple[Path, Path | None]:
+    """Write ``<prefix>_triggers.csv`` and (with an encoder) ``<prefix>_encoder.csv``: the
+    inputs of a deterministic replay (``items: {log: ...}``, ``master: {log: ...}``)."""
+    prefix = Path(prefix)
+    trig = write_trigger_log(prefix.with_name(prefix.name + "_triggers.csv"), result.triggers)
+    enc = None
+    if result.encoder_log is not None:
+        enc = write_encoder_log(prefix.with_name(prefix.name + "_encoder.csv"),
+                                result.sample_time_s, {"encoder": result.encoder_log})
+    return trig, enc
+
+
+def type_name(t: int) -> str:
+    return TYPE_NAMES[t]
