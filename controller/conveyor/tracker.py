@@ -23,11 +23,9 @@ A de-sync that starts during the approach (SYNCING: the setpoint is not on the a
 the core's straight-line stop along the current velocity: an arc through a point off the path
 would make a velocity step.
 
-Why a subclass: the core builds its stop in the private ``Tracker._start_desync`` with
-``Desync.linear`` only; it has no hook for another :class:`controller.tracking.desync.DesyncPath`.
-(The report of issue 3 asks for one.)  We also record the stop's end state
-(:attr:`ConveyorTracker.desync_end`), which the conveyor model needs the moment the de-sync
-starts (the virtual stopping position of items 8 and 9).
+The arc is supplied through the core's public ``Tracker.desync_builder`` hook; the core
+records where the stop ends (``Tracker.desync_end``), which the conveyor model needs the
+moment the de-sync starts (the virtual stopping position of items 8 and 9).
 """
 
 from __future__ import annotations
@@ -84,39 +82,32 @@ class ConveyorTracker(Tracker):
                  initial: MotionState | None = None) -> None:
         super().__init__(params, initial)
         self._arc: tuple[Vec3, Vec3, bool] | None = None
-        self.desync_count = 0
-        self.desync_end: MotionState | None = None
         #: "arc" or "line": the path of the last de-sync
         self.desync_path = ""
+        self.desync_builder = self._build_desync
 
     def set_arc(self, center: Vec3 | None, axis: Vec3 | None = None,
                 couple_angle: bool = True) -> None:
         """The arc (a point on its axis, unit axis) for the next de-sync; None: a line."""
         self._arc = None if center is None else (tuple(center), tuple(axis), couple_angle)
 
-    def _start_desync(self, start_sample: int) -> None:
-        arc = self._arc
-        built = False
-        if arc is not None and self.state == TrackState.SYNCED:
-            built = self._start_arc_desync(start_sample, *arc)
-        if not built:
-            super()._start_desync(start_sample)
-            self.desync_path = "line"
-        tr, rot = self._desync
-        p, _, _ = tr.state(tr.stop.duration)
-        (a,), _, _ = rot.state(rot.stop.duration)
-        self.desync_end = MotionState(tuple(p), (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), a, 0.0, 0.0)
-        self.desync_count += 1
+    def _build_desync(self, _tracker: Tracker) -> tuple[Desync, Desync] | None:
+        """The core's ``desync_builder``: along the arc when one is set and synchronised."""
+        built = None
+        if self._arc is not None and self.state == TrackState.SYNCED:
+            built = self._arc_desync(*self._arc)
+        self.desync_path = "arc" if built is not None else "line"
+        return built
 
-    def _start_arc_desync(self, start_sample: int, center: Vec3, axis: Vec3,
-                          couple: bool) -> bool:
+    def _arc_desync(self, center: Vec3, axis: Vec3,
+                    couple: bool) -> tuple[Desync, Desync] | None:
         sp = self.setpoint
         rel = v_sub(sp.pos, center)
         h = v_dot(rel, axis)
         radial = v_sub(rel, v_scale(axis, h))
         r = v_norm(radial)
         if not r > 1e-9:
-            return False
+            return None
         start = v_scale(radial, 1.0 / r)
         normal = v_cross(axis, start)
         c0 = tuple(c + h * a for c, a in zip(center, axis))
@@ -134,8 +125,4 @@ class ConveyorTracker(Tracker):
             rot = Desync(AnglePath(sp.ang, 180.0 / math.pi), stop)
         else:
             rot = Desync.linear((sp.ang,), (sp.ang_vel,), (sp.ang_acc,), lr.acc, lr.jerk, cur)
-        self._desync = (trans, rot)
-        self._desync_start = start_sample
-        self.state = TrackState.DESYNCING
-        self.desync_path = "arc"
-        return True
+        return trans, rot

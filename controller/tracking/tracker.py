@@ -28,8 +28,13 @@ from __future__ import annotations
 
 import copy
 import math
+from typing import Callable
 
 from .desync import Desync
+
+#: Builds the de-sync stops (translation, rotation) for a tracker about to de-sync, or returns
+#: None for the default straight-line stops.  The conveyor model supplies arcs this way.
+DesyncBuilder = Callable[["Tracker"], "tuple[Desync, Desync] | None"]
 from .oscillation import OscillationMonitor
 from .planner import ChannelPlanner, planner_factory
 from .types import (Imfs, Mode, MotionState, TrackError, TrackerOutput, TrackerParams,
@@ -80,6 +85,12 @@ class Tracker:
         self._desync_start = 0
         #: sample at which the last approach completed (None while not yet)
         self.synced_at: int | None = None
+        #: optional builder of the de-sync stops (e.g. along an arc); None: straight lines
+        self.desync_builder: DesyncBuilder | None = None
+        #: where the current (or last) de-sync comes to rest (set when it starts)
+        self.desync_end: MotionState | None = None
+        #: number of de-syncs started so far
+        self.desync_count = 0
 
     # -- commands -------------------------------------------------------------------
     def engage(self, mode: Mode | int | None = None) -> None:
@@ -142,15 +153,24 @@ class Tracker:
 
     def _start_desync(self, start_sample: int) -> None:
         """Stop on the path from the setpoint of ``start_sample`` (the last one computed)."""
-        sp = self.setpoint
-        lim = self.limits
-        cur = self.params.desync_from_current_acceleration
-        self._desync = (
-            Desync.linear(sp.pos, sp.vel, sp.acc, lim.desync_trans.acc, lim.desync_trans.jerk, cur),
-            Desync.linear((sp.ang,), (sp.ang_vel,), (sp.ang_acc,), lim.desync_rot.acc,
-                          lim.desync_rot.jerk, cur))
+        built = self.desync_builder(self) if self.desync_builder is not None else None
+        if built is None:
+            sp = self.setpoint
+            lim = self.limits
+            cur = self.params.desync_from_current_acceleration
+            built = (
+                Desync.linear(sp.pos, sp.vel, sp.acc, lim.desync_trans.acc,
+                              lim.desync_trans.jerk, cur),
+                Desync.linear((sp.ang,), (sp.ang_vel,), (sp.ang_acc,), lim.desync_rot.acc,
+                              lim.desync_rot.jerk, cur))
+        self._desync = built
         self._desync_start = start_sample
         self.state = TrackState.DESYNCING
+        tr, rot = built
+        p, _, _ = tr.state(tr.stop.duration)
+        (a,), _, _ = rot.state(rot.stop.duration)
+        self.desync_end = MotionState(tuple(p), (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), a, 0.0, 0.0)
+        self.desync_count += 1
 
     def _check_master(self, m: MotionState) -> TrackError:
         mt, mr = self.params.master_max_trans, self.params.master_max_rot

@@ -42,7 +42,7 @@ class Imfs(IntEnum):
     NOT_SYNCHRONIZED = 0  #: off, or approaching but not yet synchronised
     SYNCHRONIZED = 1  #: following the moving frame directly
     DESYNCING = -1  #: de-syncing from the moving frame
-    HANDOFF = -2  #: de-syncing from one frame while catching another (conveyor model)
+    HANDOFF = -2  #: de-syncing from one frame while catching (or already following) another
 
 
 class TrackError(IntEnum):
