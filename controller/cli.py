@@ -31,6 +31,8 @@ from .errors import CantrackError
 COMMANDS: dict[str, tuple[str, str]] = {
     "simulate": ("controller.simulate.command:main",
                  "run a tracking scenario offline (CSV trace, summary, PNG plot)"),
+    "fmu": ("controller.fmu.cli:main",
+            "build and check the tracker FMU (FMI 2.0 / 3.0 co-simulation)"),
 }
 
 EXIT_ERROR = 2

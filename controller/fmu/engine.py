@@ -1,0 +1,443 @@
+"""The FMU-independent part of the CanTracker FMUs: variables, stepping, errors, state.
+
+Used by the FMI 2.0 slave (``tracker_slave.py``, pythonfmu) and the FMI 3.0 slave
+(``tracker3_slave.py``, pythonfmu3); bundled into both FMUs as ``controller/fmu/engine.py``
+next to the tracker core.  No pythonfmu import here.
+
+Variables: ``VARIABLES`` (the FMU contract), value reference = position in the table; the
+values live in one list ``TrackerEngine.v`` indexed by value reference, which the slaves'
+get/set calls index directly (pythonfmu's generic path costs a lambda call per value).
+
+Time: one internal sample per ``sample_time`` T [s].  A communication step [t, t + n*T]
+(n >= 1 whole; relative tolerance ``STEP_TOLERANCE``) runs n tracker samples; any other step
+size is refused (logged error, ``Discard``).  The master inputs are sampled at the step
+start t and extrapolated at constant acceleration (``MotionState.extrapolated``) to each
+internal sample time t + i*T, i = 1..n; the tracker computes the setpoint of that time
+(``Tracker.update``).  The outputs at the end of the step are the setpoint at t + n*T.
+Before the first step the outputs are the robot at (x0, y0, z0, c0), at rest, state OFF.
+
+Engage: a rising edge of ``engage`` (seen at a step start, compared with the value at the
+previous step start; ``false`` before the first step) creates a new ``Tracker`` from the
+current parameters, starting from the current setpoint, and engages it with ``mode``; a
+falling edge starts the de-sync.  Both act at the first internal sample of the step.  So
+tunable parameters take effect at the next engage.
+
+State: ``get_state`` / ``set_state`` save and restore *all* internal state (the whole
+``Tracker`` incl. planners, every variable value, the last engage value, the failure flag);
+a state can be restored any number of times.  The serialized form is a pickle (trust only
+states you saved yourself).
+
+Errors: every message goes to the FMI logger (category ``logStatusError``; pythonfmu
+forwards messages only when the importer instantiated with loggingOn=true) and to the Python
+logger ``cantrack.fmu`` (a Python host prints it on stderr).  An exception inside a step is
+logged with its traceback and the step is refused (FMI 2: ``fmi2Discard``, pythonfmu has no
+other status; FMI 3: ``fmi3Error``); the instance then refuses further steps (each refusal
+repeats the first error) until a saved FMU state is set or it is reset, because its
+internal state may be half-updated.  An invalid tunable parameter at an engage edge is found
+before anything changes: that step is refused (``Discard``) and may be repeated after fixing
+the value.  Errors at initialisation (invalid fixed parameter, planner that cannot be
+loaded) are logged with the traceback and every step is refused with that message; they are
+not raised, because pythonfmu turns an exception into ``Fatal`` and then crashes the process
+on ``Terminate`` / ``FreeInstance`` (pythonfmu 0.7.0, pythonfmu3 0.3.4).  A step size that
+is not a whole multiple of ``sample_time`` is refused (``Discard``) without failing the
+instance.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import pickle
+import traceback
+from collections.abc import Callable
+from operator import itemgetter
+
+from controller.errors import ParameterError
+from controller.tracking import (
+    PLANNER_CODES,
+    Imfs,
+    Limits,
+    Mode,
+    MotionState,
+    Tracker,
+    TrackerParams,
+    TrackError,
+    TrackState,
+)
+from controller.tracking import softmc as _softmc  # noqa: F401  (import eagerly, see below)
+
+# The planners are imported lazily by the core (planner_factory).  Import them now, while the
+# FMU's resources folder is on sys.path, so a later instance never needs a folder that the
+# importer may have deleted meanwhile.  The optimal planner needs ruckig; if it cannot be
+# imported here the error is reported when an instance selects planner=1.
+try:
+    from controller.tracking import optimal as _optimal  # noqa: F401
+    OPTIMAL_IMPORT_ERROR: str | None = None
+except Exception:
+    OPTIMAL_IMPORT_ERROR = traceback.format_exc()
+
+#: Python-side logger: pythonfmu forwards FMI log messages only when the importer instantiated
+#: the FMU with loggingOn=true, so errors also go here (a Python host shows them on stderr).
+LOG = logging.getLogger("cantrack.fmu")
+
+#: relative tolerance of "a communication step is a whole multiple of sample_time"
+STEP_TOLERANCE = 1e-6
+#: format of the pickled FMU state
+STATE_FORMAT = 1
+
+_DEFAULTS = TrackerParams()
+
+
+def _enum_doc(enum) -> str:
+    return ", ".join(f"{int(m)} {m.name}" for m in enum)
+
+
+#: Units: name -> (exponents of SI base units, factor to the SI unit)
+UNITS: dict[str, tuple[dict[str, int], float]] = {
+    "s": ({"s": 1}, 1.0),
+    "mm": ({"m": 1}, 1e-3),
+    "mm/s": ({"m": 1, "s": -1}, 1e-3),
+    "mm/s2": ({"m": 1, "s": -2}, 1e-3),
+    "mm/s3": ({"m": 1, "s": -3}, 1e-3),
+    "deg": ({"rad": 1}, math.pi / 180.0),
+    "deg/s": ({"rad": 1, "s": -1}, math.pi / 180.0),
+    "deg/s2": ({"rad": 1, "s": -2}, math.pi / 180.0),
+    "deg/s3": ({"rad": 1, "s": -3}, math.pi / 180.0),
+}
+
+_sync, _rot = _DEFAULTS.sync_trans, _DEFAULTS.sync_rot
+
+#: The FMU's variables, in value-reference order: (name, type, causality, variability, start,
+#: unit, description, extra XML attributes).  Outputs have no start (initial=calculated).
+VARIABLES: list[tuple] = [
+    # -- fixed parameters
+    ("sample_time", "Real", "parameter", "fixed", 0.001, "s",
+     "Tracker sample period T; every communication step must be a whole multiple of it",
+     {"min": "1e-05", "max": "0.1"}),
+    ("mode", "Integer", "parameter", "fixed", int(Mode.ABSOLUTE), None,
+     "Approach mode used at each engage (<robot>.slave): 3 absolute (onto the master), "
+     "5 relative (keep the offset to the master at engage)", {"min": "3", "max": "5"}),
+    ("planner", "Integer", "parameter", "fixed", 1, None,
+     "Approach planner: " + ", ".join(f"{k} {v}" for k, v in sorted(PLANNER_CODES.items()))
+     + " (1 = the default planner, needs ruckig)", {"min": "0", "max": "1"}),
+    # -- tunable parameters (take effect at the next engage)
+    ("vel_sync", "Real", "parameter", "tunable", _sync.vel, "mm/s",
+     "VelocitySyncTran: translation velocity limit while synchronising (next engage)", {}),
+    ("acc_sync", "Real", "parameter", "tunable", _sync.acc, "mm/s2",
+     "AccelerationSyncTran: translation acceleration limit while synchronising", {}),
+    ("jerk_sync", "Real", "parameter", "tunable", _sync.jerk, "mm/s3",
+     "JerkSyncTran: translation jerk limit while synchronising", {}),
+    ("vel_desync", "Real", "parameter", "tunable", _sync.vel, "mm/s",
+     "VelocityDeSyncTran: translation velocity limit of the de-sync", {}),
+    ("acc_desync", "Real", "parameter", "tunable", _sync.acc, "mm/s2",
+     "AccelerationDeSyncTran: translation deceleration of the de-sync", {}),
+    ("jerk_desync", "Real", "parameter", "tunable", _sync.jerk, "mm/s3",
+     "JerkDeSyncTran: translation jerk of the de-sync", {}),
+    ("vel_sync_rot", "Real", "parameter", "tunable", _rot.vel, "deg/s",
+     "VelocitySyncRot: rotation velocity limit while synchronising", {}),
+    ("acc_sync_rot", "Real", "parameter", "tunable", _rot.acc, "deg/s2",
+     "AccelerationSyncRot: rotation acceleration limit while synchronising", {}),
+    ("jerk_sync_rot", "Real", "parameter", "tunable", _rot.jerk, "deg/s3",
+     "JerkSyncRot: rotation jerk limit while synchronising", {}),
+    ("vel_desync_rot", "Real", "parameter", "tunable", _rot.vel, "deg/s",
+     "VelocityDeSyncRot: rotation velocity limit of the de-sync", {}),
+    ("acc_desync_rot", "Real", "parameter", "tunable", _rot.acc, "deg/s2",
+     "AccelerationDeSyncRot: rotation deceleration of the de-sync", {}),
+    ("jerk_desync_rot", "Real", "parameter", "tunable", _rot.jerk, "deg/s3",
+     "JerkDeSyncRot: rotation jerk of the de-sync", {}),
+    ("filter_factor", "Real", "parameter", "tunable", _DEFAULTS.filter_factor, "1",
+     "MF.FilterFactor g (> 0): synchronised when |dv| <= g*A*T and |dp| <= g*A*T^2", {}),
+    ("damping_factor", "Real", "parameter", "tunable", _DEFAULTS.damping_factor, "1",
+     "MF.DampingFactor (> 0): multiplies the softmc time-to-reach estimate", {}),
+    ("max_flops", "Integer", "parameter", "tunable", _DEFAULTS.max_flops, None,
+     "MF.MaxFlops (>= 1): more large velocity-error sign flips than this within "
+     f"{_DEFAULTS.max_flops_time_s:g} s during the approach is an over-oscillation (error 3)",
+     {"min": "1"}),
+    ("vel_max_master", "Real", "parameter", "tunable", _DEFAULTS.master_max_trans.vel, "mm/s",
+     "MF.VelocityMaxTrans: a faster master is error 1 and starts the de-sync", {}),
+    ("acc_max_master", "Real", "parameter", "tunable", _DEFAULTS.master_max_trans.acc, "mm/s2",
+     "MF.AccelerationMaxTrans: a master accelerating harder is error 2 and starts the de-sync",
+     {}),
+    ("x0", "Real", "parameter", "fixed", 0.0, "mm", "Robot X before tracking (initial setpoint)",
+     {}),
+    ("y0", "Real", "parameter", "fixed", 0.0, "mm", "Robot Y before tracking (initial setpoint)",
+     {}),
+    ("z0", "Real", "parameter", "fixed", 0.0, "mm", "Robot Z before tracking (initial setpoint)",
+     {}),
+    ("c0", "Real", "parameter", "fixed", 0.0, "deg",
+     "Robot tool-axis angle C before tracking (initial setpoint)", {}),
+    # -- inputs: the master (moving frame), sampled at the step start
+    *[(f"master_{ax}", "Real", "input", "continuous", 0.0, "mm",
+       f"Master (moving frame) position {ax.upper()} at the step start", {}) for ax in "xyz"],
+    ("master_c", "Real", "input", "continuous", 0.0, "deg",
+     "Master angle C at the step start", {}),
+    *[(f"master_v{ax}", "Real", "input", "continuous", 0.0, "mm/s",
+       f"Master velocity along {ax.upper()} at the step start (extrapolates across the step)",
+       {}) for ax in "xyz"],
+    ("master_vc", "Real", "input", "continuous", 0.0, "deg/s",
+     "Master angular velocity C at the step start", {}),
+    *[(f"master_a{ax}", "Real", "input", "continuous", 0.0, "mm/s2",
+       f"Master acceleration along {ax.upper()} at the step start (held across the step)",
+       {}) for ax in "xyz"],
+    ("master_ac", "Real", "input", "continuous", 0.0, "deg/s2",
+     "Master angular acceleration C at the step start", {}),
+    ("engage", "Boolean", "input", "discrete", False, None,
+     "Rising edge: start synchronising (with mode); falling edge: start the de-sync. Edges "
+     "act at the first internal sample of the step; false before the first step", {}),
+    # -- outputs: the setpoint at the end of the step
+    *[(ax, "Real", "output", "continuous", None, "mm",
+       f"Robot setpoint position {ax.upper()}", {}) for ax in "xyz"],
+    ("c", "Real", "output", "continuous", None, "deg", "Robot setpoint angle C", {}),
+    *[(f"v{ax}", "Real", "output", "continuous", None, "mm/s",
+       f"Robot setpoint velocity along {ax.upper()}", {}) for ax in "xyz"],
+    ("vc", "Real", "output", "continuous", None, "deg/s", "Robot setpoint angular velocity C",
+     {}),
+    *[(f"a{ax}", "Real", "output", "continuous", None, "mm/s2",
+       f"Robot setpoint acceleration along {ax.upper()}", {}) for ax in "xyz"],
+    ("ac", "Real", "output", "continuous", None, "deg/s2",
+     "Robot setpoint angular acceleration C", {}),
+    ("imfs", "Integer", "output", "discrete", None, None,
+     "IsMovingFrameSynchronized: " + _enum_doc(Imfs), {}),
+    ("state", "Integer", "output", "discrete", None, None,
+     "Tracker state: " + _enum_doc(TrackState), {}),
+    ("error", "Integer", "output", "discrete", None, None,
+     "Tracker error (kept until the next engage): " + _enum_doc(TrackError), {}),
+]
+
+#: value reference of each variable (its position in VARIABLES)
+VR: dict[str, int] = {row[0]: i for i, row in enumerate(VARIABLES)}
+_MASTER = [VR[f"master_{n}"] for n in ("x", "y", "z", "vx", "vy", "vz", "ax", "ay", "az",
+                                      "c", "vc", "ac")]
+_get_master = itemgetter(*_MASTER)
+_OUT_FIRST = VR["x"]  # x y z c vx vy vz vc ax ay az ac imfs state error, contiguous
+assert [row[0] for row in VARIABLES[_OUT_FIRST:]] == [
+    "x", "y", "z", "c", "vx", "vy", "vz", "vc", "ax", "ay", "az", "ac", "imfs", "state", "error"]
+_PARAMETER_NAMES = [row[0] for row in VARIABLES if row[2] == "parameter"]
+_VR_ENGAGE = VR["engage"]
+#: outputs whose initial value depends on a parameter (InitialUnknowns dependencies)
+INITIAL_DEPENDENCIES = {"x": "x0", "y": "y0", "z": "z0", "c": "c0"}
+
+
+def tracker_params(v: dict) -> TrackerParams:
+    """The ``TrackerParams`` of a set of FMU parameter values (by FMU variable name).
+
+    Translation limits in mm/s, mm/s^2, mm/s^3; rotation in deg/s, ...; the master's jerk and
+    rotation maxima keep the ``TrackerParams`` defaults (the FMU does not expose them).
+    Raises ``ParameterError`` (naming the value and the allowed range) for bad values.
+    """
+    planner = int(v["planner"])
+    if planner not in PLANNER_CODES:
+        raise ParameterError(f"planner (={planner}) must be one of "
+                             + ", ".join(f"{k} ({n})" for k, n in sorted(PLANNER_CODES.items())))
+    return TrackerParams(
+        sample_time_s=float(v["sample_time"]),
+        mode=int(v["mode"]),
+        planner=PLANNER_CODES[planner],
+        sync_trans=Limits(float(v["vel_sync"]), float(v["acc_sync"]), float(v["jerk_sync"])),
+        desync_trans=Limits(float(v["vel_desync"]), float(v["acc_desync"]),
+                            float(v["jerk_desync"])),
+        sync_rot=Limits(float(v["vel_sync_rot"]), float(v["acc_sync_rot"]),
+                        float(v["jerk_sync_rot"])),
+        desync_rot=Limits(float(v["vel_desync_rot"]), float(v["acc_desync_rot"]),
+                          float(v["jerk_desync_rot"])),
+        filter_factor=float(v["filter_factor"]),
+        damping_factor=float(v["damping_factor"]),
+        max_flops=int(v["max_flops"]),
+        master_max_trans=Limits(float(v["vel_max_master"]), float(v["acc_max_master"]),
+                                _DEFAULTS.master_max_trans.jerk),
+    )
+
+
+#: step outcomes
+OK, DISCARD, ERROR = 0, 2, 3
+
+
+class TrackerEngine:
+    """The tracker behind one FMU instance (FMI-version independent).
+
+    ``report(message, warning)`` logs to the importer; the engine also logs to ``LOG``.
+    ``do_step`` returns ``OK``, ``DISCARD`` (refused, nothing changed or failed earlier) or
+    ``ERROR`` (an exception: logged with its traceback; the instance is failed).
+    """
+
+    def __init__(self, instance_name: str, build_id: str,
+                 report: Callable[[str, bool], None]) -> None:
+        self.instance_name = instance_name
+        self.build_id = build_id
+        self._fmi_report = report
+        self.v: list = [row[4] for row in VARIABLES]
+        self.by_type: dict[str, frozenset[int]] = {
+            t: frozenset(i for i, row in enumerate(VARIABLES) if row[1] == t)
+            for t in ("Real", "Integer", "Boolean")}
+        self.settable: dict[str, frozenset[int]] = {
+            t: frozenset(i for i, row in enumerate(VARIABLES)
+                         if row[1] == t and row[2] != "output")
+            for t in ("Real", "Integer", "Boolean")}
+        self.t0 = 0.0
+        self.time = 0.0
+        self.failed: str | None = None
+        self.engage_prev = False
+        self.tracker: Tracker | None = None
+        self.params: TrackerParams | None = None
+        self.T = float(self.v[VR["sample_time"]])
+        self._write_outputs(self._initial_setpoint(), 0, 0, 0)
+
+    # -- logging ----------------------------------------------------------------------
+    def report(self, msg: str, warning: bool = False) -> None:
+        self._fmi_report(msg, warning)
+        LOG.log(logging.WARNING if warning else logging.ERROR, msg)
+
+    def _log_error(self, what: str) -> str:
+        msg = f"{self.instance_name}: {what}\n{traceback.format_exc()}"
+        self.report(msg)
+        return msg
+
+    # -- helpers ------------------------------------------------------------------------
+    def _initial_setpoint(self) -> MotionState:
+        v = self.v
+        return MotionState.at(v[VR["x0"]], v[VR["y0"]], v[VR["z0"]], v[VR["c0"]])
+
+    def _write_outputs(self, sp: MotionState, imfs: int, state: int, error: int) -> None:
+        p, vel, a = sp.pos, sp.vel, sp.acc
+        self.v[_OUT_FIRST:] = (p[0], p[1], p[2], sp.ang, vel[0], vel[1], vel[2], sp.ang_vel,
+                               a[0], a[1], a[2], sp.ang_acc, int(imfs), int(state), int(error))
+
+    def current_params(self) -> TrackerParams:
+        v = self.v
+        return tracker_params({n: v[VR[n]] for n in _PARAMETER_NAMES})
+
+    def refresh_initial(self) -> None:
+        """Before initialisation ends the outputs follow x0..c0 (InitialUnknowns)."""
+        if self.tracker is None:
+            self._write_outputs(self._initial_setpoint(), 0, 0, 0)
+
+    def check(self, kind: str, vrs, settable: bool = False) -> None:
+        """Raise TypeError naming the first reference that is not a (settable) ``kind``."""
+        table = self.settable if settable else self.by_type
+        for vr in vrs:
+            if vr not in table[kind]:
+                name = VARIABLES[vr][0] if 0 <= vr < len(VARIABLES) else "?"
+                raise TypeError(f"valueReference={vr} ({name}) is not a "
+                                f"{'settable ' if settable else ''}{kind} variable")
+
+    # -- life cycle -------------------------------------------------------------------
+    def setup(self, start_time: float) -> None:
+        self.t0 = self.time = float(start_time)
+
+    def exit_initialization(self) -> None:
+        """Create the tracker.  Errors are logged and fail the instance (not raised)."""
+        try:
+            params = self.current_params()
+            if params.planner == "optimal" and OPTIMAL_IMPORT_ERROR is not None:
+                raise ImportError("planner=1 (optimal) cannot be loaded (is ruckig installed "
+                                  "in the importing Python?):\n" + OPTIMAL_IMPORT_ERROR)
+            tracker = Tracker(params, self._initial_setpoint())
+        except Exception as exc:
+            # Not raised: pythonfmu turns an exception into Fatal and then crashes the
+            # host on Terminate/FreeInstance.  Every step reports it instead.
+            self.failed = self._log_error(f"initialisation failed: {exc}")
+            return
+        self.tracker, self.params, self.T = tracker, params, params.sample_time_s
+        self.engage_prev = False
+        self.failed = None
+        self._write_outputs(tracker.setpoint, tracker.imfs, tracker.state, tracker.error)
+
+    def do_step(self, current_time: float, step_size: float) -> int:
+        if self.failed is not None:
+            self.report(f"{self.instance_name}: step at t={current_time!r} s refused: the "
+                        f"instance failed earlier (set a saved FMU state or reset it). First "
+                        f"error:\n{self.failed}")
+            return DISCARD
+        T = self.T
+        n = round(step_size / T)
+        if n < 1 or abs(step_size - n * T) > STEP_TOLERANCE * T:
+            self.report(f"{self.instance_name}: communication step size {step_size!r} s at "
+                        f"t={current_time!r} s refused: it must be a whole multiple (>= 1) of "
+                        f"sample_time={T!r} s (ratio {step_size / T:.9g}, relative tolerance "
+                        f"{STEP_TOLERANCE:g}); use stepSize {T!r} s (DefaultExperiment) or "
+                        f"a multiple")
+            return DISCARD
+        try:
+            self._step(n, T)
+        except ParameterError as exc:
+            # raised before any state changed: the step can be repeated with a valid value
+            self._log_error(f"step at t={current_time!r} s refused, a tunable parameter is "
+                            f"invalid at engage: {exc}")
+            return DISCARD
+        except Exception as exc:
+            self.failed = self._log_error(
+                f"exception in the step at t={current_time!r} s, step size {step_size!r} s: "
+                f"{exc!r}")
+            return ERROR
+        self.time = current_time + step_size
+        return OK
+
+    def _step(self, n: int, T: float) -> None:
+        tracker = self.tracker
+        v = self.v
+        engage = bool(v[_VR_ENGAGE])
+        if engage != self.engage_prev:
+            if engage:
+                params = self.current_params()  # may raise ParameterError: nothing changed yet
+                tracker = Tracker(params, tracker.setpoint)
+                tracker.engage()
+                self.tracker, self.params = tracker, params
+            else:
+                tracker.disengage()
+            self.engage_prev = engage
+        mx, my, mz, mvx, mvy, mvz, max_, may, maz, mc, mvc, mac = _get_master(v)
+        master = MotionState((mx, my, mz), (mvx, mvy, mvz), (max_, may, maz), mc, mvc, mac)
+        update = tracker.update
+        if n == 1:
+            out = update(master.extrapolated(T))
+        else:
+            for i in range(1, n + 1):
+                out = update(master.extrapolated(i * T))
+        sp = out.setpoint
+        p, vel, a = sp.pos, sp.vel, sp.acc
+        # the enums are ints (IntEnum): stored as they are
+        v[_OUT_FIRST:] = (p[0], p[1], p[2], sp.ang, vel[0], vel[1], vel[2], sp.ang_vel,
+                          a[0], a[1], a[2], sp.ang_acc, out.imfs, out.state, out.error)
+
+    # -- FMU state ------------------------------------------------------------------------
+    def get_state(self) -> dict:
+        """Everything: all variable values, the whole tracker (deep copy), edge memory."""
+        return {"format": STATE_FORMAT, "build": self.build_id, "values": list(self.v),
+                "tracker": None if self.tracker is None else self.tracker.snapshot(),
+                "params": self.params, "engage_prev": self.engage_prev, "t0": self.t0,
+                "time": self.time, "failed": self.failed}
+
+    def set_state(self, state: dict) -> None:
+        """Restore a state of ``get_state`` (copied: it can be restored again).  An unusable
+        state is logged and fails the instance (not raised, see ``exit_initialization``)."""
+        if not isinstance(state, dict) or state.get("format") != STATE_FORMAT or len(
+                state.get("values", ())) != len(VARIABLES):
+            self.failed = (f"{self.instance_name}: SetFMUState got an unusable state "
+                           f"(expected format {STATE_FORMAT} with {len(VARIABLES)} values)"
+                           + (f": {state['error']}" if isinstance(state, dict)
+                              and state.get("error") else ""))
+            self.report(self.failed)
+            return
+        if state.get("build") != self.build_id:
+            self.report(f"{self.instance_name}: FMU state saved by build "
+                        f"{state.get('build')!r}, restored into {self.build_id!r}", True)
+        self.v[:] = state["values"]
+        tracker = state["tracker"]
+        self.tracker = None if tracker is None else tracker.snapshot()
+        self.params = state["params"]
+        self.T = self.params.sample_time_s if self.params else float(
+            self.v[VR["sample_time"]])
+        self.engage_prev = state["engage_prev"]
+        self.t0, self.time = state["t0"], state["time"]
+        self.failed = state["failed"]
+
+    @staticmethod
+    def state_to_bytes(state: dict) -> bytes:
+        return pickle.dumps(state, protocol=pickle.HIGHEST_PROTOCOL)
+
+    @staticmethod
+    def state_from_bytes(data: bytes) -> dict:
+        try:
+            return pickle.loads(data)
+        except Exception as exc:
+            return {"format": None, "error": f"cannot deserialize: {exc!r}"}

@@ -1,0 +1,235 @@
+"""Drive ``CanTracker.fmu`` with fmpy, and the same run with the core directly.
+
+:class:`FmuTracker` wraps fmpy's ``FMU2Slave`` (value references resolved by name, log
+messages captured); :func:`core_run` is the reference: ``controller.tracking.Tracker`` fed
+the same master states, extrapolated the same way (``MotionState.extrapolated(i*T)`` from
+the step start).  Used by ``cantrack fmu check``, the cross-check generator, the FMU tests
+and ``benchmarks/fmu.py``.
+"""
+
+from __future__ import annotations
+
+import math
+import shutil
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
+from pathlib import Path
+
+from ..errors import CantrackError
+from ..tracking import MotionState, Tracker, TrackerParams
+
+#: master inputs, in the order of :func:`master_values`
+MASTER_INPUTS = ["master_x", "master_y", "master_z", "master_c", "master_vx", "master_vy",
+                 "master_vz", "master_vc", "master_ax", "master_ay", "master_az", "master_ac"]
+OUTPUT_REALS = ["x", "y", "z", "c", "vx", "vy", "vz", "vc", "ax", "ay", "az", "ac"]
+OUTPUT_INTS = ["imfs", "state", "error"]
+
+class FmuRunError(CantrackError):
+    """Instantiating or initialising the FMU failed (the message has the FMU's log)."""
+
+
+#: a master trajectory: step index k -> (master state at the step start, engage)
+Scenario = Callable[[int], tuple[MotionState, bool]]
+
+
+def master_values(m: MotionState) -> list[float]:
+    """The master inputs (``MASTER_INPUTS`` order) of a master state."""
+    return [m.pos[0], m.pos[1], m.pos[2], m.ang, m.vel[0], m.vel[1], m.vel[2], m.ang_vel,
+            m.acc[0], m.acc[1], m.acc[2], m.ang_acc]
+
+
+def setpoint_values(sp: MotionState) -> list[float]:
+    """The real outputs (``OUTPUT_REALS`` order) of a setpoint."""
+    return [sp.pos[0], sp.pos[1], sp.pos[2], sp.ang, sp.vel[0], sp.vel[1], sp.vel[2],
+            sp.ang_vel, sp.acc[0], sp.acc[1], sp.acc[2], sp.ang_acc]
+
+
+def conveyor_scenario(step_s: float, *, speed: float = 300.0, engage_s: float = 0.1,
+                      release_s: float = 1.0, y: float = 50.0, c0: float = 10.0,
+                      c_speed: float = 20.0) -> Scenario:
+    """Constant-velocity master along X (+ rotation); engage from ``engage_s`` to ``release_s``."""
+
+    def at(k: int) -> tuple[MotionState, bool]:
+        t = k * step_s
+        m = MotionState((100.0 + speed * t, y, 0.0), (speed, 0.0, 0.0), (0.0, 0.0, 0.0),
+                        c0 + c_speed * t, c_speed, 0.0)
+        return m, engage_s <= t < release_s
+
+    return at
+
+
+def circle_scenario(step_s: float, *, radius: float = 100.0, omega: float = 2.0,
+                    windows: Iterable[tuple[float, float]] = ((0.05, 0.6), (0.7, 0.75),
+                                                              (0.78, 1.3))) -> Scenario:
+    """A master on a circle (|v| = r*w, |a| = r*w^2: all axes accelerate) with a bobbing Z and
+    a swinging angle; engaged within the (start, end) windows [s] (re-engages, also during
+    the de-sync)."""
+    windows = tuple(windows)
+
+    def at(k: int) -> tuple[MotionState, bool]:
+        t = k * step_s
+        cw, sw = math.cos(omega * t), math.sin(omega * t)
+        r, w = radius, omega
+        m = MotionState(
+            (200.0 + r * cw, r * sw, 5.0 * sw),
+            (-r * w * sw, r * w * cw, 5.0 * w * cw),
+            (-r * w * w * cw, -r * w * w * sw, -5.0 * w * w * sw),
+            20.0 * sw, 20.0 * w * cw, -20.0 * w * w * sw)
+        return m, any(a <= t < b for a, b in windows)
+
+    return at
+
+
+@dataclass
+class CoreRun:
+    """Outputs of :func:`core_run`, one row per communication step."""
+
+    reals: list[list[float]]
+    ints: list[list[int]]
+
+
+def core_run(params: TrackerParams, scenario: Scenario, n_steps: int,
+             samples_per_step: int = 1, initial: MotionState | None = None) -> CoreRun:
+    """The reference: the core ``Tracker`` with the FMU's stepping rules, no FMU.
+
+    Step k: master = ``scenario(k)`` (its state at the step start); engage edges (against
+    the previous step, ``False`` before the first) act at the first sample; sample i = 1..n
+    gets ``master.extrapolated(i*T)``; the row is the setpoint after the last sample.
+    """
+    T = params.sample_time_s
+    tracker = Tracker(params, initial if initial is not None else MotionState.at())
+    engaged = False
+    reals, ints = [], []
+    for k in range(n_steps):
+        master, engage = scenario(k)
+        if engage != engaged:
+            tracker.engage() if engage else tracker.disengage()
+            engaged = engage
+        for i in range(1, samples_per_step + 1):
+            out = tracker.update(master.extrapolated(i * T))
+        reals.append(setpoint_values(out.setpoint))
+        ints.append([int(out.imfs), int(out.state), int(out.error)])
+    return CoreRun(reals, ints)
+
+
+class FmuTracker:
+    """One ``CanTracker.fmu`` instance in fmpy (``FMU2Slave``), as a context manager.
+
+    ``start_values``: parameter values by name, set in initialisation mode.
+    Log messages go to ``self.messages`` as (status, category, message).
+    """
+
+    def __init__(self, fmu_path: str | Path, instance_name: str = "tracker",
+                 start_values: dict | None = None, start_time: float = 0.0,
+                 logging_on: bool = True, unzip_dir: str | Path | None = None) -> None:
+        from fmpy import calloc, extract, free, read_model_description
+        from fmpy.fmi2 import (
+            FMU2Slave,
+            fmi2CallbackAllocateMemoryTYPE,
+            fmi2CallbackFreeMemoryTYPE,
+            fmi2CallbackFunctions,
+            fmi2CallbackLoggerTYPE,
+        )
+
+        self.path = Path(fmu_path)
+        self.model_description = md = read_model_description(str(self.path))
+        self.vr = {v.name: v.valueReference for v in md.modelVariables}
+        self.types = {v.name: v.type for v in md.modelVariables}
+        self._own_dir = unzip_dir is None
+        self.unzip_dir = extract(str(self.path)) if unzip_dir is None else str(unzip_dir)
+        self.messages: list[tuple[int, str, str]] = []
+
+        def log(_env, _name, status, category, message):
+            self.messages.append((int(status), (category or b"").decode(errors="replace"),
+                                  (message or b"").decode(errors="replace")))
+
+        callbacks = fmi2CallbackFunctions()
+        callbacks.logger = fmi2CallbackLoggerTYPE(log)
+        callbacks.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
+        callbacks.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
+        try:
+            from ctypes import byref
+
+            from fmpy.logging import addLoggerProxy
+            addLoggerProxy(byref(callbacks))
+        except Exception:  # pragma: no cover - older fmpy: messages may keep '%' escapes
+            pass
+        self._callbacks = callbacks  # keep alive
+        self._in_vrs = [self.vr[n] for n in MASTER_INPUTS]
+        self._out_vrs = [self.vr[n] for n in OUTPUT_REALS]
+        self._int_vrs = [self.vr[n] for n in OUTPUT_INTS]
+        self._engage_vr = [self.vr["engage"]]
+        self.slave = None
+        self.time = start_time
+        try:
+            self.slave = FMU2Slave(guid=md.guid, unzipDirectory=self.unzip_dir,
+                                   modelIdentifier=md.coSimulation.modelIdentifier,
+                                   instanceName=instance_name)
+            self.slave.instantiate(callbacks=callbacks, loggingOn=logging_on)
+            self.slave.setupExperiment(startTime=start_time)
+            self.slave.enterInitializationMode()
+            if start_values:
+                self.set(start_values)
+            self.slave.exitInitializationMode()
+        except Exception as exc:
+            log = "\n".join(f"[{c}] {m}" for _, c, m in self.messages[-3:])
+            # after fmi2Fatal pythonfmu crashes on any further call: leave the instance
+            self.slave = None
+            self.close()
+            raise FmuRunError(f"{self.path}: instantiation/initialisation failed: {exc}"
+                              + (f"\n{log}" if log else "")) from exc
+
+    def set(self, values: dict) -> None:
+        """Set variables by name (Real, Integer or Boolean)."""
+        for name, value in values.items():
+            typ = self.types[name]
+            if typ == "Real":
+                self.slave.setReal([self.vr[name]], [float(value)])
+            elif typ == "Integer":
+                self.slave.setInteger([self.vr[name]], [int(value)])
+            elif typ == "Boolean":
+                self.slave.setBoolean([self.vr[name]], [bool(value)])
+            else:
+                raise TypeError(f"{name}: unsupported type {typ}")
+
+    def step(self, master: MotionState, engage: bool, step_size: float) -> None:
+        """Set the master and engage, then one ``doStep`` from ``self.time``."""
+        self.slave.setReal(self._in_vrs, master_values(master))
+        self.slave.setBoolean(self._engage_vr, [engage])
+        self.slave.doStep(currentCommunicationPoint=self.time, communicationStepSize=step_size)
+        self.time += step_size
+
+    def outputs(self) -> tuple[list[float], list[int]]:
+        return self.slave.getReal(self._out_vrs), self.slave.getInteger(self._int_vrs)
+
+    def run(self, scenario: Scenario, n_steps: int, step_size: float,
+            first_step: int = 0) -> CoreRun:
+        """Steps ``first_step .. first_step + n_steps - 1`` of a scenario; outputs per step."""
+        reals, ints = [], []
+        for k in range(first_step, first_step + n_steps):
+            master, engage = scenario(k)
+            self.step(master, engage, step_size)
+            r, i = self.outputs()
+            reals.append(r)
+            ints.append(i)
+        return CoreRun(reals, ints)
+
+    def close(self) -> None:
+        slave, self.slave = getattr(self, "slave", None), None
+        if slave is not None:
+            try:
+                slave.terminate()
+            except Exception:
+                pass
+            try:
+                slave.freeInstance()
+            except Exception:
+                slave.freeLibrary()
+        if self._own_dir:
+            shutil.rmtree(self.unzip_dir, ignore_errors=True)
+
+    def __enter__(self) -> FmuTracker:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()

@@ -1,0 +1,176 @@
+"""The CanTracker FMU slave (FMI 2.0 Co-Simulation, pythonfmu).
+
+This file is the pythonfmu slave script.  ``cantrack fmu build`` copies it into the FMU under
+a content-hashed module name (``cantracker_<hash>.py``, see ``controller.fmu.build``) next to
+a copy of the tracker core (``controller/__init__.py``, ``controller/errors.py``,
+``controller/tracking/``) and of ``controller/fmu/engine.py``, which holds the variables,
+the step semantics, the error handling and the FMU state (see its docstring).  This class
+maps pythonfmu's calls onto the engine and writes the model description extras pythonfmu
+lacks (units, min/max, output dependencies, ``InitialUnknowns``: pythonfmu issue #193).
+
+FMI 2 statuses: a refused step and an exception in a step both give ``fmi2Discard`` (a
+pythonfmu slave can return nothing else from a step); the message says which.
+"""
+
+from __future__ import annotations
+
+from xml.etree.ElementTree import Element, SubElement
+
+from pythonfmu import (
+    Boolean,
+    DefaultExperiment,
+    Fmi2Causality,
+    Fmi2Slave,
+    Fmi2Variability,
+    Integer,
+    Real,
+)
+from pythonfmu.enums import Fmi2Status
+
+import controller
+from controller.fmu.engine import (
+    INITIAL_DEPENDENCIES,
+    OK,
+    UNITS,
+    VARIABLES,
+    VR,
+    TrackerEngine,
+    tracker_params,
+)
+
+__all__ = ["VARIABLES", "VR", "CanTracker", "tracker_params"]
+
+_TYPES = {"Real": Real, "Integer": Integer, "Boolean": Boolean}
+
+
+class CanTracker(Fmi2Slave):
+    """Conveyor tracking (softMC moving-frame synchronisation) of one robot on one master."""
+
+    author = "cantrack"
+    description = ("cantrack conveyor tracker (softMC moving-frame synchronisation): robot "
+                   "setpoint from the master's state; units mm, deg, s")
+    version = controller.__version__
+    license = "MIT"
+    default_experiment = DefaultExperiment(start_time=0.0, step_size=0.001)
+
+    def __init__(self, **kwargs) -> None:
+        super().__init__(**kwargs)
+        engine = self._engine = TrackerEngine(self.instance_name, __name__, self._fmi_log)
+        v = self._v = engine.v
+        for vr, (name, typ, causality, variability, _start, _unit, desc, _x) in enumerate(
+                VARIABLES):
+            var = _TYPES[typ](name, causality=getattr(Fmi2Causality, causality),
+                              variability=getattr(Fmi2Variability, variability),
+                              description=desc, getter=(lambda vr=vr: v[vr]),
+                              setter=None if causality == "output" else (
+                                  lambda value, vr=vr: v.__setitem__(vr, value)))
+            self.register_variable(var)
+            assert var.value_reference == vr
+        self._real = engine.by_type["Real"]
+        self._int = engine.by_type["Integer"]
+        self._bool = engine.by_type["Boolean"]
+        self._set_real = engine.settable["Real"]
+        self._set_int = engine.settable["Integer"]
+        self._set_bool = engine.settable["Boolean"]
+
+    def _fmi_log(self, msg: str, warning: bool) -> None:
+        self.log(msg, Fmi2Status.warning if warning else Fmi2Status.error)
+
+    # -- model description ------------------------------------------------------------
+    def to_xml(self, model_options: dict | None = None) -> Element:
+        """pythonfmu's description plus units, min/max, output dependencies and the
+        ``InitialUnknowns`` (pythonfmu issue #193)."""
+        root = super().to_xml(model_options or {})
+        specs = {row[0]: (row[5], row[7]) for row in VARIABLES}
+        units = Element("UnitDefinitions")
+        for name in sorted({unit for unit, _ in specs.values() if unit and unit != "1"}):
+            exps, factor = UNITS[name]
+            attrs = {k: str(e) for k, e in exps.items()}
+            if factor != 1.0:
+                attrs["factor"] = repr(factor)
+            SubElement(SubElement(units, "Unit", {"name": name}), "BaseUnit", attrs)
+        root.insert(list(root).index(root.find("CoSimulation")) + 1, units)
+        for sv in root.find("ModelVariables"):
+            unit, extra = specs[sv.get("name")]
+            if unit and unit != "1":
+                sv[0].set("unit", unit)
+            for k, val in extra.items():
+                sv[0].set(k, val)
+        structure = root.find("ModelStructure")
+        for unknown in structure.find("Outputs"):
+            unknown.set("dependencies", "")  # no direct feed-through: outputs are states
+        initial = SubElement(structure, "InitialUnknowns")
+        for row in VARIABLES:
+            if row[2] == "output":
+                dep = INITIAL_DEPENDENCIES.get(row[0])
+                SubElement(initial, "Unknown", {
+                    "index": str(VR[row[0]] + 1),
+                    "dependencies": str(VR[dep] + 1) if dep else ""})
+        return root
+
+    # -- life cycle -------------------------------------------------------------------
+    def setup_experiment(self, start_time: float, *args) -> None:
+        self._engine.setup(start_time)
+
+    def exit_initialization_mode(self) -> None:
+        self._engine.exit_initialization()
+
+    def do_step(self, current_time: float, step_size: float) -> bool:
+        return self._engine.do_step(current_time, step_size) == OK
+
+    # -- variable access --------------------------------------------------------------
+    def get_real(self, vrs):
+        if not self._real.issuperset(vrs):
+            self._engine.check("Real", vrs)
+        if self._engine.tracker is None:
+            self._engine.refresh_initial()
+        v = self._v
+        return [v[vr] for vr in vrs]
+
+    def get_integer(self, vrs):
+        if not self._int.issuperset(vrs):
+            self._engine.check("Integer", vrs)
+        v = self._v
+        return [v[vr] for vr in vrs]
+
+    def get_boolean(self, vrs):
+        if not self._bool.issuperset(vrs):
+            self._engine.check("Boolean", vrs)
+        v = self._v
+        return [v[vr] for vr in vrs]
+
+    def set_real(self, vrs, values):
+        if not self._set_real.issuperset(vrs):
+            self._engine.check("Real", vrs, settable=True)
+        v = self._v
+        for vr, value in zip(vrs, values):
+            v[vr] = value
+
+    def set_integer(self, vrs, values):
+        if not self._set_int.issuperset(vrs):
+            self._engine.check("Integer", vrs, settable=True)
+        v = self._v
+        for vr, value in zip(vrs, values):
+            v[vr] = int(value)
+
+    def set_boolean(self, vrs, values):
+        if not self._set_bool.issuperset(vrs):
+            self._engine.check("Boolean", vrs, settable=True)
+        v = self._v
+        for vr, value in zip(vrs, values):
+            v[vr] = bool(value)
+
+    # -- FMU state (all internal state, see engine) -----------------------------------------
+    def _get_fmu_state(self) -> dict:
+        return self._engine.get_state()
+
+    def _set_fmu_state(self, state: dict) -> None:
+        self._engine.set_state(state)
+
+    @staticmethod
+    def _fmu_state_to_bytes(state: dict) -> bytes:
+        return TrackerEngine.state_to_bytes(state)
+
+    @staticmethod
+    def _fmu_state_from_bytes(state: bytes) -> dict:
+        return TrackerEngine.state_from_bytes(state)
