@@ -1,0 +1,205 @@
+"""pytest plugin: the ``vcan`` (real SocketCAN, native or VM) and ``hil`` (real bus) test tiers.
+
+Registered for the project's tests in ``tests/conftest.py``::
+
+    pytest_plugins = ["controller.testing.pytest_plugin"]
+
+(or ``-p controller.testing.pytest_plugin`` on the command line).
+
+Options (group "cantrack CAN bus")::
+
+    --can-interface NAME   python-can interface of a real bus (socketcan, pcan, kvaser, ...)
+    --can-channel NAME     its channel (can0, PCAN_USBBUS1, ...)
+    --can-bitrate BIT/S    its bitrate (for interfaces that set it; socketcan: set by `ip link`)
+    --bus-config PATH      the rig's cantrack bus configuration (nodes, EDS files, PDOs)
+    --vcan-mode MODE       auto (default; $CANTRACK_VCAN_MODE), native or vm
+    --vcan-required        a vcan test that cannot run fails instead of being skipped
+                           (default from $CANTRACK_VCAN_REQUIRED=1; CI sets it)
+
+Markers: ``vcan`` — needs a real SocketCAN ``vcan0``; skipped only when neither native vcan nor
+the VM is possible, with a message that says what to install.  ``hil`` — needs a real bus;
+skipped unless ``--can-interface`` and ``--can-channel`` are given.
+
+Fixtures: ``vcan_runner`` (session; :class:`VcanRunner`: ``.run(argv, timeout_s, env=...)``
+→ :class:`~controller.testing.vm.VmResult`), ``hil_bus_config`` (session; :class:`HilBus`),
+``tshark_path`` (session; path of tshark, skip/fail with the install hint when missing).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+
+import pytest
+
+from .capture import tshark_available
+from .vcan import MODES, pick_mode, resolve_mode, run_with_vcan, vcan_available
+from .vm import DEFAULT_CHANNEL, VmResult
+
+_AVAIL_KEY = pytest.StashKey[tuple]()
+_RUNNER_KEY = pytest.StashKey[object]()
+
+HIL_HINT = ("hil: needs a real CAN bus: run with --can-interface socketcan --can-channel can0 "
+            "[--can-bitrate 500000] [--bus-config rig.yaml] (see docs/hil.md)")
+
+
+def pytest_addoption(parser: pytest.Parser) -> None:
+    g = parser.getgroup("cantrack CAN bus", "real SocketCAN (vcan) and hardware-in-the-loop")
+    g.addoption("--can-interface", default=None, metavar="NAME",
+                help="python-can interface of a real bus for hil tests (socketcan, pcan, ...)")
+    g.addoption("--can-channel", default=None, metavar="NAME",
+                help="channel of the real bus for hil tests (can0, ...)")
+    g.addoption("--can-bitrate", default=None, type=int, metavar="BIT/S",
+                help="bitrate of the real bus (for interfaces that set it)")
+    g.addoption("--bus-config", default=None, metavar="PATH",
+                help="the rig's cantrack bus configuration file for hil tests")
+    g.addoption("--vcan-mode", default=None, choices=MODES,
+                help="how vcan tests get a real SocketCAN vcan0: auto (native, else VM; "
+                     "default, or $CANTRACK_VCAN_MODE), native, vm")
+    g.addoption("--vcan-required", action="store_true",
+                default=os.environ.get("CANTRACK_VCAN_REQUIRED", "") not in ("", "0"),
+                help="fail vcan tests that cannot run instead of skipping them "
+                     "(default: $CANTRACK_VCAN_REQUIRED=1)")
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    config.addinivalue_line(
+        "markers", "vcan: needs a real SocketCAN vcan0 (native or in the VM harness)")
+    config.addinivalue_line("markers", "hil: needs a real CAN bus (hardware in the loop)")
+    if config.getoption("--bus-config") and not config.getoption("--can-channel"):
+        raise pytest.UsageError("--bus-config needs --can-interface and --can-channel")
+    if bool(config.getoption("--can-interface")) != bool(config.getoption("--can-channel")):
+        raise pytest.UsageError("--can-interface and --can-channel go together: "
+                                "e.g. --can-interface socketcan --can-channel can0")
+    bc = config.getoption("--bus-config")
+    if bc and not Path(bc).is_file():
+        raise pytest.UsageError(f"--bus-config {bc}: no such file")
+
+
+def _vcan_availability(config: pytest.Config) -> tuple[bool, str]:
+    if _AVAIL_KEY not in config.stash:
+        config.stash[_AVAIL_KEY] = vcan_available(config.getoption("--vcan-mode"),
+                                                  DEFAULT_CHANNEL)
+    return config.stash[_AVAIL_KEY]
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    hil_on = bool(config.getoption("--can-interface") and config.getoption("--can-channel"))
+    required = config.getoption("--vcan-required")
+    for item in items:
+        if item.get_closest_marker("hil") and not hil_on:
+            item.add_marker(pytest.mark.skip(reason=HIL_HINT))
+        if item.get_closest_marker("vcan"):
+            ok, why = _vcan_availability(config)
+            if not ok and not required:
+                item.add_marker(pytest.mark.skip(reason="vcan: " + why))
+
+
+@dataclasses.dataclass
+class VcanRunner:
+    """Runs commands on a real SocketCAN ``vcan0`` (native or VM); keeps every result."""
+
+    mode: str
+    channel: str = DEFAULT_CHANNEL
+    results: list = dataclasses.field(default_factory=list)
+    tmp_factory: pytest.TempPathFactory | None = None
+
+    def run(self, argv: Sequence[str], timeout_s: float = 120.0,
+            env: Mapping[str, str] | None = None, *, cwd: str | Path | None = None,
+            scratch_dir: str | Path | None = None) -> VmResult:
+        """:func:`controller.testing.vcan.run_with_vcan` in this runner's mode (scratch
+        directory: a new pytest temporary directory unless given)."""
+        if scratch_dir is None and self.tmp_factory is not None:
+            scratch_dir = self.tmp_factory.mktemp("vcan-run")
+        r = run_with_vcan(argv, timeout_s, env, mode=self.mode, cwd=cwd,
+                          scratch_dir=scratch_dir, channel=self.channel)
+        self.results.append(r)
+        return r
+
+
+@pytest.fixture(scope="session")
+def vcan_runner(pytestconfig: pytest.Config,
+                tmp_path_factory: pytest.TempPathFactory) -> VcanRunner:
+    """A :class:`VcanRunner`; skips (fails with --vcan-required) when no vcan is possible.
+
+    Each ``run`` in VM mode is one VM boot (~4 s idle, more on a loaded machine, plus the
+    command): put everything a test module needs into one command.
+    """
+    ok, why = _vcan_availability(pytestconfig)
+    if not ok:
+        if pytestconfig.getoption("--vcan-required"):
+            pytest.fail("vcan required but not possible: " + why, pytrace=False)
+        pytest.skip("vcan: " + why)
+    mode = pick_mode(pytestconfig.getoption("--vcan-mode"), DEFAULT_CHANNEL)
+    runner = VcanRunner(mode=mode, tmp_factory=tmp_path_factory)
+    pytestconfig.stash[_RUNNER_KEY] = runner
+    return runner
+
+
+@pytest.fixture(scope="session")
+def tshark_path(pytestconfig: pytest.Config) -> str:
+    """Path of ``tshark`` (the independent CANopen decoder); skip (or fail with
+    --vcan-required) with the install hint when it is missing."""
+    ok, found = tshark_available()
+    if not ok:
+        if pytestconfig.getoption("--vcan-required"):
+            pytest.fail(found, pytrace=False)
+        pytest.skip(found)
+    return found
+
+
+@dataclasses.dataclass(frozen=True)
+class HilBus:
+    """The real bus of a hil run: python-can interface, channel, bitrate, bus configuration."""
+
+    interface: str
+    channel: str
+    bitrate: int | None = None
+    bus_config: Path | None = None
+
+    def bus_kwargs(self) -> dict:
+        """Keyword arguments for ``can.Bus(**kw)`` / ``canopen.Network().connect(**kw)``."""
+        kw = {"interface": self.interface, "channel": self.channel}
+        if self.bitrate is not None:
+            kw["bitrate"] = self.bitrate
+        return kw
+
+
+@pytest.fixture(scope="session")
+def hil_bus_config(pytestconfig: pytest.Config) -> HilBus:
+    """The :class:`HilBus` from the command line; skips when no real bus was given."""
+    iface = pytestconfig.getoption("--can-interface")
+    chan = pytestconfig.getoption("--can-channel")
+    if not (iface and chan):
+        pytest.skip(HIL_HINT)
+    bc = pytestconfig.getoption("--bus-config")
+    return HilBus(interface=iface, channel=chan, bitrate=pytestconfig.getoption("--can-bitrate"),
+                  bus_config=Path(bc).resolve() if bc else None)
+
+
+def pytest_report_header(config: pytest.Config) -> list[str]:
+    iface = config.getoption("--can-interface")
+    if not iface:
+        return []
+    line = f"hil bus: {iface} {config.getoption('--can-channel')}"
+    if config.getoption("--can-bitrate"):
+        line += f" @ {config.getoption('--can-bitrate')} bit/s"
+    if config.getoption("--bus-config"):
+        line += f", config {config.getoption('--bus-config')}"
+    return [line]
+
+
+def pytest_terminal_summary(terminalreporter, exitstatus, config: pytest.Config) -> None:
+    runner = config.stash.get(_RUNNER_KEY, None)
+    if runner is None or not runner.results:
+        return
+    parts = []
+    for r in runner.results:
+        boot = f"boot {r.boot_s:.1f} s, " if r.boot_s is not None else ""
+        cmd = f"command {r.command_s:.1f} s" if r.command_s is not None else ""
+        parts.append(f"{boot}{cmd}")
+    terminalreporter.write_line(
+        f"vcan ({runner.mode}, {resolve_mode(config.getoption('--vcan-mode'))}): "
+        f"{len(runner.results)} run(s): " + "; ".join(parts))
