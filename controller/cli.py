@@ -31,6 +31,9 @@ from .errors import CantrackError
 COMMANDS: dict[str, tuple[str, str]] = {
     "simulate": ("controller.simulate.command:main",
                  "run a tracking scenario offline (CSV trace, summary, PNG plot)"),
+    "demo": ("controller.canopen.cmd_demo:main", "tracking demo on a simulated CANopen bus"),
+    "run": ("controller.canopen.cmd_run:main", "the CANopen tracking controller on a CAN bus"),
+    "sim-devices": ("controller.canopen.cmd_sim:main", "simulated encoder and drives on a CAN bus"),
     "fmu": ("controller.fmu.cli:main",
             "build and check the tracker FMU (FMI 2.0 / 3.0 co-simulation)"),
 }

@@ -1,0 +1,112 @@
+"""The ``.simulation:`` section of bus.yml: parameters of the simulated devices.
+
+Device units (counts) for the drives, mm and s for the belt.  Every key is optional::
+
+    .simulation:
+      boot_delay_s: 0.005          # power-on / NMT reset -> boot-up message [s]
+      <encoder slave>:             # a slave whose EDS is a CiA 406 encoder
+        counts_per_mm: 40.96       # default: .tracking.conveyor.counts_per_mm
+        sign: 1                    # default: .tracking.conveyor.sign
+        profile: [[0, 300]]        # belt speed [t_s, v_mm_s] points, piecewise linear
+        initial_counts: 0          # 6004h at t = 0 (before the wrap at 6002h)
+        noise_counts: 0            # standard deviation of Gaussian noise [counts]
+        seed: 1
+      <drive slave>:               # a CiA 402 drive
+        initial_counts: 0          # 6064h at power-on
+        tau_s: 0.0005              # servo time constant [s]
+        max_velocity: 1.0e8        # [counts/s]
+        negative_limit: -100000    # limit switch (60FDh bit0) active at x <= this [counts]
+        positive_limit: 9000000    # bit1 active at x >= this
+        home_switch: [0, 5000]     # bit2 active in [lo, hi] [counts]
+        slow_down: [8000000, 9000000]   # bit16 active in [lo, hi]
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
+
+from .. import od as odm
+from ..yamlmarks import Section, suggest
+from .drive import DriveParams
+from .encoder import EncoderParams
+
+if TYPE_CHECKING:
+    from ..config import BusConfig
+
+
+@dataclass(frozen=True)
+class SimulationConfig:
+    boot_delay_s: float = 0.005
+    devices: dict[str, Any] = field(default_factory=dict)
+
+
+def _range(s: Section, key: str) -> tuple[int, int] | None:
+    if not s.has(key):
+        s.raw(key, None)
+        return None
+    value = s.raw(key)
+    if not (isinstance(value, list) and len(value) == 2
+            and all(isinstance(v, int) and not isinstance(v, bool) for v in value)
+            and value[0] <= value[1]):
+        raise s.error(key, "must be a list [lo, hi] of two integers (counts) with lo <= hi")
+    return int(value[0]), int(value[1])
+
+
+def parse_simulation(s: Section, cfg: BusConfig) -> SimulationConfig:
+    boot = s.float("boot_delay_s", 0.005, min=0.0, max=10.0)
+    devices: dict[str, Any] = {}
+    for name, _ in list(s.items()):
+        if name == "boot_delay_s":
+            continue
+        if name not in cfg.slaves:
+            raise s.error(name, "is not a slave of this bus"
+                          + suggest(str(name), list(cfg.slaves) + ["boot_delay_s"]),
+                          at_value=False)
+        d = s.section(name)
+        prof = odm.profile(cfg.ods[name])
+        if prof == odm.PROFILE_ENCODER:
+            devices[name] = _encoder(d, cfg)
+        elif prof == odm.PROFILE_DRIVE:
+            devices[name] = _drive(d)
+        else:
+            raise s.error(name, f"'{name}' is neither a CiA 402 drive nor a CiA 406 encoder: "
+                                "nothing to set", at_value=False)
+    return SimulationConfig(boot, devices)
+
+
+def _encoder(s: Section, cfg: BusConfig) -> EncoderParams:
+    conv = cfg.tracking.conveyor if cfg.tracking is not None else None
+    profile = []
+    for item, line, path in s.list("profile", [[0.0, 300.0]]):
+        if not (isinstance(item, list) and len(item) == 2 and all(
+                isinstance(v, (int, float)) and not isinstance(v, bool) for v in item)):
+            from ...errors import ConfigError
+            raise ConfigError("must be a pair [t_s, v_mm_s]", file=s.file, line=line, key=path)
+        profile.append((float(item[0]), float(item[1])))
+    times = [p[0] for p in profile]
+    if times != sorted(times) or len(set(times)) != len(times):
+        raise s.error("profile", "the times must increase strictly")
+    p = EncoderParams(
+        counts_per_mm=s.float("counts_per_mm", conv.counts_per_mm if conv else 40.96,
+                              above=0.0),
+        profile=tuple(profile),
+        initial_counts=s.int("initial_counts", 0, min=0, max=0xFFFFFFFF),
+        sign=s.int("sign", conv.sign if conv else 1, allowed=(1, -1)),
+        noise_counts=s.float("noise_counts", 0.0, min=0.0),
+        seed=s.int("seed", 1))
+    s.finish()
+    return p
+
+
+def _drive(s: Section) -> DriveParams:
+    p = DriveParams(
+        initial_counts=s.int("initial_counts", 0, min=-0x80000000, max=0x7FFFFFFF),
+        tau_s=s.float("tau_s", 0.0005, min=0.0, max=1.0),
+        max_velocity=s.float("max_velocity", 1.0e8, above=0.0),
+        negative_limit=s.int("negative_limit", None),
+        positive_limit=s.int("positive_limit", None),
+        home_switch=_range(s, "home_switch"),
+        slow_down=_range(s, "slow_down"))
+    s.finish()
+    return p

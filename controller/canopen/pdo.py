@@ -1,0 +1,141 @@
+"""The PDOs each slave has after boot, and packing/unpacking of their data.
+
+:func:`effective_pdos` applies the bus.yml on top of the EDS defaults (dcfgen's rules, see
+:mod:`controller.canopen.concise`).  :class:`PdoCodec` packs and unpacks one PDO's mapped
+values with one precompiled ``struct`` (little endian, CiA 301 byte order); only byte-aligned
+mappings of 8/16/32/64-bit objects (and dummy entries) are supported, which is what the EDS
+files' granularity of 8 allows.
+
+Transmission types (CiA 301): 0 acyclic synchronous, 1-240 every n-th SYNC, 252/253 RTR,
+254/255 event driven.
+"""
+
+from __future__ import annotations
+
+import struct
+from collections.abc import Iterable, Iterator, Sequence
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+from canopen.objectdictionary import ObjectDictionary
+
+from . import od as odm
+from .concise import INVALID, PdoState, concise_configuration
+
+if TYPE_CHECKING:
+    from .config import BusConfig
+
+_DUMMY_FORMAT = {0x0001: "?", 0x0002: "b", 0x0003: "h", 0x0004: "i", 0x0005: "B",
+                 0x0006: "H", 0x0007: "I"}
+
+
+def is_cyclic(transmission: int) -> bool:
+    """Sent on SYNC (transmission types 0...240)."""
+    return 0 <= transmission <= 240
+
+
+@dataclass(frozen=True, slots=True)
+class PdoSpec:
+    """A configured PDO of a slave (``kind`` from the slave's point of view)."""
+
+    kind: str  # "rpdo" (the slave receives) | "tpdo" (the slave transmits)
+    number: int
+    cob_id: int  # 11-bit identifier
+    enabled: bool
+    transmission: int
+    inhibit_time: int
+    event_timer: int
+    sync_start: int
+    mapping: tuple[tuple[int, int, int], ...]  # (index, sub-index, bits)
+    line: int | None = None
+
+    @property
+    def comm_index(self) -> int:
+        return (0x1400 if self.kind == "rpdo" else 0x1800) + self.number - 1
+
+    @property
+    def size(self) -> int:
+        """Data bytes on the wire."""
+        return sum(bits for _, _, bits in self.mapping) // 8
+
+    def maps(self, index: int, sub_index: int = 0) -> bool:
+        return any(i == index and s == sub_index for i, s, _ in self.mapping)
+
+    def objects(self) -> list[tuple[int, int]]:
+        return [(i, s) for i, s, _ in self.mapping]
+
+    @classmethod
+    def from_state(cls, p: PdoState) -> PdoSpec:
+        return cls(p.kind, p.number, p.cob_id & 0x7FF, p.enabled, p.transmission,
+                   p.inhibit_time, p.event_timer, p.sync_start, tuple(p.mapping), p.line)
+
+
+@dataclass(frozen=True)
+class NodePdos:
+    rpdo: dict[int, PdoSpec]
+    tpdo: dict[int, PdoSpec]
+
+    def all(self) -> Iterator[PdoSpec]:
+        yield from self.rpdo.values()
+        yield from self.tpdo.values()
+
+    def find(self, kind: str, objects: Iterable[tuple[int, int]]) -> PdoSpec | None:
+        """The first enabled PDO of ``kind`` that maps all ``objects``."""
+        wanted = list(objects)
+        for p in (self.rpdo if kind == "rpdo" else self.tpdo).values():
+            if p.enabled and all(p.maps(i, s) for i, s in wanted):
+                return p
+        return None
+
+
+def effective_pdos(cfg: BusConfig) -> dict[str, NodePdos]:
+    """Per slave name: the PDOs as configured at the end of the boot."""
+    out = {}
+    for name, c in concise_configuration(cfg).items():
+        out[name] = NodePdos({n: PdoSpec.from_state(p) for n, p in c.rpdo.items()},
+                             {n: PdoSpec.from_state(p) for n, p in c.tpdo.items()})
+    return out
+
+
+class PdoCodec:
+    """Pack/unpack the values of one PDO (one value per mapping entry, in order)."""
+
+    def __init__(self, spec: PdoSpec, od: ObjectDictionary) -> None:
+        fmt = "<"
+        for index, sub, bits in spec.mapping:
+            if index < 0x1000:
+                fmt += _DUMMY_FORMAT.get(index, "x" * (bits // 8))
+                continue
+            var = odm.variable(od, index, sub)
+            if var is None or var.data_type not in odm.STRUCT_FORMAT or len(var) != bits:
+                raise ValueError(f"{spec.kind.upper()} {spec.number}: cannot pack "
+                                 f"{index:04X}h:{sub:02X} ({bits} bits)")
+            fmt += odm.STRUCT_FORMAT[var.data_type]
+        self.spec = spec
+        self.struct = struct.Struct(fmt)
+        self.objects = spec.objects()
+
+    def pack(self, values: Sequence[int | float]) -> bytes:
+        return self.struct.pack(*values)
+
+    def unpack(self, data: bytes | bytearray) -> tuple:
+        return self.struct.unpack_from(data)
+
+    def position(self, index: int, sub_index: int = 0) -> int:
+        """Position of ``index:sub_index`` in the packed tuple."""
+        return self.objects.index((index, sub_index))
+
+
+def pdo_enable_conflicts(cfg: BusConfig) -> list[tuple[str, str, int, int | None]]:
+    """(slave, kind, number, line) of PDOs asked to be enabled that dcfgen leaves disabled
+    (EDS COB-ID with bit 31 set and no ``cob_id`` given)."""
+    from .concise import pdo_from_od
+    out = []
+    for name, slave in cfg.slaves.items():
+        for kind, settings in (("rpdo", slave.rpdo), ("tpdo", slave.tpdo)):
+            for number, s in settings.items():
+                base = pdo_from_od(cfg.ods[name], kind, number)
+                if s.enabled and s.cob_id is None and base is not None \
+                        and base.cob_id & INVALID:
+                    out.append((name, kind, number, s.line))
+    return out

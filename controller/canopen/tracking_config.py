@@ -1,0 +1,293 @@
+"""The ``.tracking:`` section of bus.yml: what the controller does with the bus.
+
+Units: mm, mm/s, mm/s^2, mm/s^3, deg, s (counts only as ``counts_per_mm``/``counts_per_deg``
+scales).  Keys (``*`` = required)::
+
+    .tracking:
+      conveyor:*                     # the master axis (a CiA 406 encoder)
+        node:* encoder               # slave name
+        index: 0x6004                # object with the position, mapped in a TPDO that is
+        sub_index: 0                 #   sent on every SYNC (transmission 1)
+        counts_per_mm:* 40.96        # encoder counts per mm of belt travel (> 0)
+        sign: 1                      # +1 / -1: counting direction vs. belt direction
+        modulus: 16777216            # wrap of the count (6002h); default: the slave's
+                                     #   sdo write of 6002h, else the EDS default, else 0
+        origin: [0, 0, 0]            # machine position [mm] of belt coordinate 0
+        direction: [1, 0, 0]         # belt direction in machine coordinates (normalised)
+        estimator: {window: 16, degree: 2}   # controller.tracking.MasterEstimator
+        silent_cycles: 5             # no sample for this many cycles -> de-sync on the
+                                     #   extrapolated master (>= 1)
+      kinematics:*
+        type: cartesian              # controller.kinematics.KINEMATICS
+        axes:*                       # drive order; x, y, z in mm, c in deg
+          x: {node:* x, counts_per_mm:* 1000, zero: 0, sign: 1, min: -1e9, max: 1e9}
+          c: {node:* c, counts_per_deg:* 1000, ...}
+      tracker:                       # controller.tracking.TrackerParams fields except
+        planner: optimal             #   sample_time_s (= master.sync_period)
+        mode: absolute               # absolute | relative | 3 | 5
+        sync_trans: {vel: 2000, acc: 20000, jerk: 400000}   # and every other field
+      window: {start: 200, end: 900} # pick window along the conveyor direction [mm]
+      cycle:
+        compute_at: 0.5              # the cycle computes at the latest this fraction of the
+                                     #   period after its SYNC (inputs late -> stale)
+        drive_delay_cycles: 1        # a drive reaches the target it applies at SYNC k+1 at
+                                     #   SYNC k+1+this (CSP interpolation over one period);
+                                     #   the master is predicted that much further ahead
+      timeouts:                      # [s]
+        boot_up_s: 2.0               # NMT reset -> boot-up message
+        sdo_s: 0.5                   # one SDO request -> response
+        sdo_retries: 1               # an unanswered SDO request is sent again (a node that
+                                     #   was still resetting when its boot-up came in)
+        enable_s: 2.0                # 402 enable: switch on disabled -> operation enabled
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+from ..errors import ConfigError, ParameterError
+from ..kinematics import KINEMATICS, AxisScale
+from ..tracking import PLANNERS, Limits, Mode, Rates, SoftMcOptions, TrackerParams
+from . import od as odm
+from .yamlmarks import Section
+
+if TYPE_CHECKING:
+    from .config import BusConfig
+
+Vec3 = tuple[float, float, float]
+
+
+@dataclass(frozen=True, slots=True)
+class ConveyorConfig:
+    node: str
+    index: int
+    sub_index: int
+    counts_per_mm: float
+    sign: int
+    modulus: int
+    origin: Vec3
+    direction: Vec3
+    window: int
+    degree: int
+    silent_cycles: int
+
+
+@dataclass(frozen=True, slots=True)
+class AxisConfig:
+    name: str
+    node: str
+    scale: AxisScale
+
+
+@dataclass(frozen=True, slots=True)
+class Timeouts:
+    boot_up_s: float = 2.0
+    sdo_s: float = 0.5
+    enable_s: float = 2.0
+    sdo_retries: int = 1
+
+
+@dataclass(frozen=True)
+class TrackingConfig:
+    conveyor: ConveyorConfig
+    kinematics: str
+    axes: tuple[AxisConfig, ...]
+    tracker: TrackerParams
+    window: tuple[float, float]
+    compute_at: float
+    timeouts: Timeouts
+    drive_delay_cycles: int = 1
+
+    @property
+    def drive_nodes(self) -> tuple[str, ...]:
+        return tuple(a.node for a in self.axes)
+
+
+def parse_tracking(s: Section, cfg: BusConfig) -> TrackingConfig:
+    conveyor = _conveyor(s.section("conveyor"), cfg)
+    kin = s.section("kinematics")
+    kind = kin.str("type", "cartesian", choices=list(KINEMATICS))
+    axes = _axes(kin.section("axes"), cfg, conveyor)
+    kin.finish()
+    try:
+        from ..kinematics import create
+        create(kind, [a.name for a in axes])
+    except ParameterError as exc:
+        raise kin.error("axes", str(exc)) from None
+    tracker = _tracker(s.section("tracker", {}), cfg.period_s)
+    w = s.section("window", {})
+    start = w.float("start", -math.inf)
+    end = w.float("end", math.inf)
+    if not start < end:
+        raise w.error("end", f"(={end}) must be > start (={start})")
+    w.finish()
+    c = s.section("cycle", {})
+    compute_at = c.float("compute_at", 0.5, min=0.05, max=0.95)
+    delay = c.int("drive_delay_cycles", 1, min=0, max=10)
+    c.finish()
+    t = s.section("timeouts", {})
+    timeouts = Timeouts(boot_up_s=t.float("boot_up_s", 2.0, above=0.0),
+                        sdo_s=t.float("sdo_s", 0.5, above=0.0),
+                        enable_s=t.float("enable_s", 2.0, above=0.0),
+                        sdo_retries=t.int("sdo_retries", 1, min=0, max=10))
+    t.finish()
+    s.finish()
+    return TrackingConfig(conveyor, kind, axes, tracker, (start, end), compute_at, timeouts,
+                          delay)
+
+
+def _slave_ref(s: Section, key: str, cfg: BusConfig, profile: int, what: str) -> str:
+    name = s.str(key)
+    if name not in cfg.slaves:
+        from .yamlmarks import suggest
+        raise s.error(key, f"(={name!r}) is not a slave of this bus" + suggest(name, cfg.slaves))
+    prof = odm.profile(cfg.ods[name])
+    if prof != profile:
+        raise s.error(key, f"(={name!r}) must be a CiA {profile} {what}; its EDS "
+                           f"{cfg.slaves[name].dcf.name} has device profile {prof}")
+    return name
+
+
+def _conveyor(s: Section, cfg: BusConfig) -> ConveyorConfig:
+    from .pdo import effective_pdos
+    node = _slave_ref(s, "node", cfg, odm.PROFILE_ENCODER, "encoder")
+    index = s.int("index", 0x6004, min=0x1000, max=0xFFFF)
+    sub = s.int("sub_index", 0, min=0, max=0xFF)
+    od = cfg.ods[node]
+    if odm.variable(od, index, sub) is None:
+        raise s.error("index", f"object {index:04X}h:{sub:02X} does not exist in "
+                               f"{cfg.slaves[node].dcf.name}")
+    pdo = effective_pdos(cfg)[node].find("tpdo", [(index, sub)])
+    if pdo is None or pdo.transmission != 1:
+        raise s.error("index", f"{index:04X}h:{sub:02X} of '{node}' must be mapped in an "
+                               "enabled TPDO with transmission 1 (every SYNC)")
+    modulus = s.int("modulus", None, min=0, max=0xFFFFFFFF)
+    if modulus is None:
+        modulus = _configured_value(cfg, node, 0x6002, 0)
+    direction = s.vector("direction", 3, (1.0, 0.0, 0.0))
+    n = math.sqrt(sum(x * x for x in direction))
+    if n == 0:
+        raise s.error("direction", "must not be the zero vector")
+    est = s.section("estimator", {})
+    window = est.int("window", 16, min=3, max=256)
+    degree = est.int("degree", 2, allowed=(1, 2))
+    est.finish()
+    conv = ConveyorConfig(
+        node=node, index=index, sub_index=sub,
+        counts_per_mm=s.float("counts_per_mm", above=0.0),
+        sign=s.int("sign", 1, allowed=(1, -1)), modulus=modulus,
+        origin=s.vector("origin", 3, (0.0, 0.0, 0.0)),
+        direction=tuple(x / n for x in direction),
+        window=window, degree=degree,
+        silent_cycles=s.int("silent_cycles", 5, min=1, max=10_000))
+    s.finish()
+    return conv
+
+
+def _configured_value(cfg: BusConfig, node: str, index: int, sub: int) -> int:
+    for w in cfg.slaves[node].sdo:
+        if w.index == index and w.sub_index == sub:
+            return w.value
+    var = odm.variable(cfg.ods[node], index, sub)
+    value = odm.default_value(var) if var is not None else None
+    return int(value or 0)
+
+
+def _axes(s: Section, cfg: BusConfig, conveyor: ConveyorConfig) -> tuple[AxisConfig, ...]:
+    from .pdo import effective_pdos
+    pdos = effective_pdos(cfg)
+    out = []
+    used: dict[str, str] = {}
+    for name, _ in list(s.items()):
+        a = s.section(name)
+        node = _slave_ref(a, "node", cfg, odm.PROFILE_DRIVE, "drive")
+        if node in used:
+            raise a.error("node", f"(={node!r}) already drives axis {used[node]}")
+        used[node] = str(name)
+        unit_key = "counts_per_deg" if name == "c" else "counts_per_mm"
+        cpu = a.float(unit_key, above=0.0)
+        lo = a.float("min", -math.inf)
+        hi = a.float("max", math.inf)
+        if not lo < hi:
+            raise a.error("max", f"(={hi}) must be > min (={lo})")
+        scale = AxisScale(str(name), cpu, a.float("zero", 0.0),
+                          a.int("sign", 1, allowed=(1, -1)), lo, hi)
+        a.finish()
+        rp = pdos[node].find("rpdo", [(0x6040, 0), (0x607A, 0)])
+        tp = pdos[node].find("tpdo", [(0x6041, 0), (0x6064, 0)])
+        if rp is None or not (0 <= rp.transmission <= 240):
+            raise a.error("node", f"'{node}' needs an enabled synchronous RPDO (transmission "
+                                  "0...240) mapping 6040h and 607Ah")
+        if tp is None or tp.transmission != 1:
+            raise a.error("node", f"'{node}' needs an enabled TPDO with transmission 1 "
+                                  "mapping 6041h and 6064h")
+        out.append(AxisConfig(str(name), node, scale))
+    if not out:
+        raise s.error(next(iter(s.data), "axes"), "at least one axis is required")
+    return tuple(out)
+
+
+# -- TrackerParams -------------------------------------------------------------------------
+_LIMIT_FIELDS = ("vel", "acc", "jerk")
+
+
+def _limits(s: Section, default: Limits | None) -> Limits:
+    if default is None:
+        vals = {k: s.float(k, above=0.0) for k in _LIMIT_FIELDS}
+    else:
+        vals = {k: s.float(k, getattr(default, k), above=0.0) for k in _LIMIT_FIELDS}
+    s.finish()
+    return Limits(**vals)
+
+
+def _tracker(s: Section, sample_time_s: float) -> TrackerParams:
+    base = TrackerParams(sample_time_s=sample_time_s)
+    changes: dict[str, Any] = {}
+    for f in dataclasses.fields(TrackerParams):
+        key = f.name
+        if key == "sample_time_s" or not s.has(key):
+            continue
+        default = getattr(base, key)
+        if key == "planner":
+            changes[key] = s.str(key, choices=sorted(PLANNERS))
+        elif key == "mode":
+            raw = s.raw(key)
+            names = {"absolute": Mode.ABSOLUTE, "relative": Mode.RELATIVE, 3: Mode.ABSOLUTE,
+                     5: Mode.RELATIVE}
+            if isinstance(raw, bool) or raw not in names:
+                raise s.error(key, f"(={raw!r}) must be absolute, relative, 3 or 5")
+            changes[key] = names[raw]
+        elif key in ("sync_trans", "desync_trans", "sync_rot", "desync_rot",
+                     "master_max_trans", "master_max_rot"):
+            changes[key] = _limits(s.section(key), default)
+        elif key in ("robot_max_trans", "robot_max_rot"):
+            changes[key] = _limits(s.section(key), None)
+        elif key == "rates":
+            r = s.section(key)
+            changes[key] = Rates(**{k: r.float(k, getattr(default, k), above=0.0, max=100.0)
+                                    for k in ("vel", "acc", "dec", "jerk")})
+            r.finish()
+        elif key == "softmc":
+            o = s.section(key)
+            start = SoftMcOptions.literal() if o.bool("literal", False) else SoftMcOptions()
+            vals = {g.name: o.bool(g.name, getattr(start, g.name))
+                    for g in dataclasses.fields(SoftMcOptions)}
+            o.finish()
+            changes[key] = SoftMcOptions(**vals)
+        elif isinstance(default, bool):
+            changes[key] = s.bool(key)
+        elif key == "max_flops":
+            changes[key] = s.int(key, min=1)
+        else:
+            changes[key] = s.float(key, above=0.0)
+    if s.has("sample_time_s"):
+        raise s.error("sample_time_s", "is not set here: the sample time is the SYNC period "
+                                       "(master.sync_period)", at_value=False)
+    s.finish()
+    try:
+        return base.with_(**changes)
+    except ParameterError as exc:
+        raise ConfigError(str(exc), file=s.file, line=s.line, key=s.path) from None

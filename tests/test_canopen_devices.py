@@ -1,0 +1,334 @@
+"""The simulated devices behave like real ones (raw frames from a minimal test master).
+
+Stepped time on a python-can virtual bus; the devices are canopen LocalNodes built from the
+EDS files.  A controller that skips a 402 step, or enables with a stale 607Ah, fails.
+"""
+
+from __future__ import annotations
+
+import struct
+
+import pytest
+
+from controller.canopen import cia402
+from controller.canopen.cia402 import State
+from controller.canopen.sdo import SdoAbortError, SdoClient
+from controller.canopen.testing import load
+from controller.canopen.world import SimWorld
+
+MS = 1_000_000
+
+
+class RawMaster:
+    """A test master: raw NMT/SYNC/RPDO frames and an SDO client, frames recorded."""
+
+    def __init__(self, world: SimWorld) -> None:
+        self.world = world
+        self.t = world.transport
+        self.frames: list[tuple[int, int, bytes]] = []
+        for cob in list(range(0x080, 0x100)) + list(range(0x180, 0x500)) + \
+                list(range(0x700, 0x780)):
+            self.t.subscribe(cob, self._rec)
+        self.counter = 0
+
+    def _rec(self, can_id: int, data: bytes, t_ns: int) -> None:
+        self.frames.append((t_ns, can_id, data))
+
+    def sdo(self, node_id: int) -> SdoClient:
+        return SdoClient(self.t, node_id, f"node {node_id}", 0.05)
+
+    def nmt(self, cmd: int, node: int = 0) -> None:
+        self.t.send(0, bytes((cmd, node)))
+        self.run(0)
+
+    def run(self, ms: float) -> None:
+        self.t.run_until(self.t.clock.now_ns() + int(ms * MS))
+
+    def sync(self, rpdos: dict[int, bytes] | None = None, period_ms: float = 2.0) -> None:
+        """Send SYNC, then the RPDOs (applied at the next SYNC), then wait one period."""
+        self.counter = self.counter % 16 + 1
+        self.t.send(0x80, bytes((self.counter,)))
+        self.run(0)
+        for cob, data in (rpdos or {}).items():
+            self.t.send(cob, data)
+        self.run(period_ms)
+
+    def of(self, cob: int) -> list[bytes]:
+        return [d for _, c, d in self.frames if c == cob]
+
+
+@pytest.fixture
+def bus(tmp_path):
+    cfg = load(tmp_path)
+    world = SimWorld(cfg)
+    master = RawMaster(world)
+    master.run(10)  # power-on boot-up at 5 ms
+    yield world, master
+    world.close()
+
+
+def rpdo(cw: int, target: int) -> bytes:
+    return struct.pack("<Hi", cw, target)
+
+
+def configure_csp(m: RawMaster, node: int = 11) -> None:
+    sdo = m.sdo(node)
+    sdo.download(0x60C2, 1, b"\x02")
+    sdo.download(0x60C2, 2, struct.pack("<b", -3))
+    sdo.download(0x6060, 0, b"\x08")
+
+
+def enable(m: RawMaster, cob: int, target: int, sequence=(0x06, 0x07, 0x0F)) -> None:
+    for cw in sequence:
+        m.sync({cob: rpdo(cw, target)})
+    m.sync({cob: rpdo(sequence[-1], target)})
+
+
+def test_boot_up_heartbeat_and_nmt(bus):
+    world, m = bus
+    assert [d for d in m.of(0x70B)] == [b"\x00"]  # boot-up of node 11 after power-on
+    m.sdo(11).download(0x1017, 0, struct.pack("<H", 20))
+    m.run(100)
+    hb = m.of(0x70B)[1:]
+    assert len(hb) == 5 and set(hb) == {bytes((127,))}  # pre-operational every 20 ms
+    m.nmt(0x01, 11)
+    m.run(20)
+    assert m.of(0x70B)[-1] == bytes((5,))
+    world.device("x").stop_heartbeat()
+    n = len(m.of(0x70B))
+    m.run(100)
+    assert len(m.of(0x70B)) == n
+
+
+def test_reset_node_restores_defaults_and_sends_boot_up(bus):
+    world, m = bus
+    sdo = m.sdo(11)
+    sdo.download(0x6065, 0, struct.pack("<I", 1234))
+    assert sdo.upload_uint(0x6065, 0) == 1234
+    m.nmt(0x81, 11)
+    m.run(10)
+    assert m.of(0x70B)[-1] == b"\x00"
+    assert sdo.upload_uint(0x6065, 0) == 0x00020000  # EDS default
+    assert world.device("x").state is State.SWITCH_ON_DISABLED
+
+
+def test_pdo_mapping_follows_cia301(bus):
+    world, m = bus
+    sdo = m.sdo(11)
+    with pytest.raises(SdoAbortError, match="06040043"):  # mapping while the PDO is valid
+        sdo.download(0x1A00, 1, struct.pack("<I", 0x60640020))
+    sdo.download(0x1800, 1, struct.pack("<I", 0x8000018B))
+    with pytest.raises(SdoAbortError, match="06040043"):  # sub0 must be 0 first
+        sdo.download(0x1A00, 1, struct.pack("<I", 0x60640020))
+    sdo.download(0x1A00, 0, b"\x00")
+    with pytest.raises(SdoAbortError, match="06040041"):  # 6065h is not mappable
+        sdo.download(0x1A00, 1, struct.pack("<I", 0x60650020))
+    sdo.download(0x1A00, 1, struct.pack("<I", 0x60640020))
+    sdo.download(0x1A00, 0, b"\x01")
+    sdo.download(0x1800, 1, struct.pack("<I", 0x18B))
+    m.nmt(0x01, 11)
+    m.sync()
+    assert m.of(0x18B) == [struct.pack("<i", 4_000_000)]  # 6064h only
+
+
+def test_encoder_tpdo_on_sync_wraps_at_6002h(bus):
+    world, m = bus
+    enc = world.device("encoder")
+    m.sync()
+    assert m.of(0x18A) == []  # pre-operational: no PDO
+    m.nmt(0x01, 10)
+    m.sdo(10).download(0x6003, 0, struct.pack("<I", 16777216 - 100))  # preset near the wrap
+    for _ in range(10):
+        m.sync()
+    values = [struct.unpack("<Ih", d)[0] for d in m.of(0x18A)]  # EDS default: 6004h + 6030h
+    assert len(values) == 10
+    # 300 mm/s * 40.96 counts/mm = 12288 counts/s = 24.6 counts per 2 ms
+    steps = [(b - a) % 16777216 for a, b in zip(values, values[1:])]
+    assert set(steps) <= {24, 25} and sum(steps) == pytest.approx(9 * 24.576, abs=1)
+    assert values[0] >= 16777216 - 100 and values[-1] < 200  # wrapped at 6002h
+    speed = struct.unpack("<Ih", m.of(0x18A)[-1])[1]
+    assert speed == round(300 * 40.96)
+    enc.mute_pdos(True)
+    m.sync()
+    assert len(m.of(0x18A)) == 10
+    enc.noise_counts = 5.0
+    enc.mute_pdos(False)
+    m.sync()
+    assert len(m.of(0x18A)) == 11
+
+
+def test_402_enable_sequence(bus):
+    world, m = bus
+    configure_csp(m)
+    m.nmt(0x01, 11)
+    drive = world.device("x")
+    enable(m, 0x20B, 4_000_000)
+    assert drive.state is State.OPERATION_ENABLED
+    assert [n for n, _, _ in drive.transitions] == [1, 2, 3, 4]
+    sw = struct.unpack("<Hi", m.of(0x18B)[-1])
+    assert cia402.decode_statusword(sw[0]) is State.OPERATION_ENABLED
+    assert sw[0] & cia402.SW_FOLLOWS_TARGET and not sw[0] & cia402.SW_FOLLOWING_ERROR
+    assert sw[1] == 4_000_000
+    # CSP: 607Ah is applied at the next SYNC, the servo reaches it one period later
+    m.sync({0x20B: rpdo(0x0F, 4_001_000)})
+    assert drive.demand == 4_000_000
+    m.sync({0x20B: rpdo(0x0F, 4_001_000)})
+    assert drive.demand == 4_001_000
+    m.sync({0x20B: rpdo(0x0F, 4_001_000)})
+    assert abs(drive.x - 4_001_000) < 20
+
+
+@pytest.mark.parametrize("sequence", [(0x0F,), (0x07, 0x0F), (0x0F, 0x07)])
+def test_skipping_a_402_step_fails(bus, sequence):
+    """Without "shutdown" (transition 2) first, the drive stays SWITCH ON DISABLED."""
+    world, m = bus
+    configure_csp(m)
+    m.nmt(0x01, 11)
+    drive = world.device("x")
+    for _ in range(5):
+        enable(m, 0x20B, 4_000_000, sequence)
+    assert drive.state is State.SWITCH_ON_DISABLED
+    assert [n for n, _, _ in drive.transitions] == [1]
+
+
+def test_switch_on_and_enable_in_one_command(bus):
+    """From READY TO SWITCH ON, 0Fh is "switch on + enable operation" (3 and 4): allowed."""
+    world, m = bus
+    configure_csp(m)
+    m.nmt(0x01, 11)
+    enable(m, 0x20B, 4_000_000, (0x06, 0x0F))
+    assert world.device("x").state is State.OPERATION_ENABLED
+
+
+def test_enable_with_stale_target_faults_with_following_error(bus):
+    world, m = bus
+    configure_csp(m)
+    m.nmt(0x01, 11)
+    drive = world.device("x")
+    # a controller that never set 607A = 6064: its old target (0) is 400 mm away
+    enable(m, 0x20B, 0)
+    for _ in range(10):
+        m.sync({0x20B: rpdo(0x0F, 0)})
+    assert drive.state is State.FAULT_REACTION_ACTIVE  # ramping down at 6085h
+    for _ in range(1000):
+        if drive.state is State.FAULT:
+            break
+        m.sync({0x20B: rpdo(0x0F, 0)})
+    assert drive.state is State.FAULT
+    assert drive.load(0x603F) == 0x8611
+    emcy = m.of(0x8B)
+    assert emcy and struct.unpack_from("<H", emcy[0])[0] == 0x8611
+    bits = [struct.unpack("<Hi", d)[0] for d in m.of(0x18B)]
+    assert any(b & cia402.SW_FOLLOWING_ERROR for b in bits)  # bit 13 before the fault
+
+
+def test_quick_stop_ramps_then_switch_on_disabled(bus):
+    world, m = bus
+    configure_csp(m)
+    m.nmt(0x01, 11)
+    drive = world.device("x")
+    enable(m, 0x20B, 4_000_000)
+    target = 4_000_000
+    for _ in range(50):  # move at 0.5 m/s (5000 counts per 2 ms)
+        target += 5000
+        m.sync({0x20B: rpdo(0x0F, target)})
+    assert drive.v == pytest.approx(2.5e6, rel=1e-3)
+    m.sync({0x20B: rpdo(0x02, target)})
+    m.sync({0x20B: rpdo(0x02, target)})
+    assert drive.state is State.QUICK_STOP_ACTIVE
+    for _ in range(100):
+        m.sync({0x20B: rpdo(0x02, target)})
+    assert drive.state is State.SWITCH_ON_DISABLED
+    assert [n for n, _, _ in drive.transitions][-2:] == [11, 12]
+    # 6085h = 20971520 counts/s^2: 2.5e6 counts/s stops in 0.12 s over ~149000 counts
+    assert drive.x - target == pytest.approx(2.5e6 ** 2 / (2 * 20971520), rel=0.05)
+
+
+def test_fault_reset_needs_a_rising_edge(bus):
+    world, m = bus
+    configure_csp(m)
+    m.nmt(0x01, 11)
+    drive = world.device("x")
+    enable(m, 0x20B, 4_000_000)
+    m.sync({0x20B: rpdo(0x80, 4_000_000)})  # bit 7 already high when the fault comes
+    m.sync({0x20B: rpdo(0x80, 4_000_000)})  # (an RPDO acts at the next SYNC)
+    assert drive.state is State.OPERATION_ENABLED  # 80h alone is no 402 command
+    drive.inject_fault(0x2310)
+    for _ in range(10):
+        m.sync({0x20B: rpdo(0x80, 4_000_000)})
+    assert drive.state is State.FAULT
+    m.sync({0x20B: rpdo(0x00, 4_000_000)})
+    m.sync({0x20B: rpdo(0x80, 4_000_000)})
+    m.sync({0x20B: rpdo(0x80, 4_000_000)})
+    assert drive.state is State.SWITCH_ON_DISABLED
+    codes = [struct.unpack_from("<H", d)[0] for d in m.of(0x8B)]
+    assert codes == [0x2310, 0x0000]
+
+
+def test_lost_controller_heartbeat_quick_stops(bus):
+    world, m = bus
+    configure_csp(m)
+    m.sdo(11).download(0x1016, 1, struct.pack("<I", (1 << 16) | 30))
+    m.nmt(0x01, 11)
+    drive = world.device("x")
+    for _ in range(4):
+        m.t.send(0x701, b"\x05")
+        enable(m, 0x20B, 4_000_000)
+    assert drive.state is State.OPERATION_ENABLED
+    for _ in range(30):  # no more controller heartbeats: 30 ms later 6007h = 3 acts
+        m.sync({0x20B: rpdo(0x0F, 4_000_000)})
+    assert drive.state in (State.QUICK_STOP_ACTIVE, State.SWITCH_ON_DISABLED)
+    assert 0x8130 in [struct.unpack_from("<H", d)[0] for d in m.of(0x8B)]
+
+
+def test_touch_probe_latches_position(bus):
+    world, m = bus
+    sdo = m.sdo(11)
+    m.nmt(0x01, 11)
+    drive = world.device("x")
+    sdo.download(0x60B8, 0, struct.pack("<H", 0x0011))  # enable probe 1, positive edge
+    assert sdo.upload_uint(0x60B9, 0) == 0x0001
+    drive.x = 1_234_567.0
+    drive.set_probe_input(True)
+    assert sdo.upload_uint(0x60B9, 0) & 0x0003 == 0x0003
+    assert sdo.upload_int(0x60BA, 0) == 1_234_567
+    assert sdo.upload_uint(0x60FD, 0) & (1 << 17)
+    m.run(2)
+    assert m.of(0x28B)[-1] == struct.pack("<Hi", 0x0003, 1_234_567)  # TPDO2, on change
+    drive.set_probe_input(False)
+    drive.x = 2_000_000.0
+    drive.set_probe_input(True)  # single shot: not latched again
+    assert sdo.upload_int(0x60BA, 0) == 1_234_567
+
+
+def test_limit_switches_and_home_on_60fd(tmp_path):
+    from dataclasses import replace
+    cfg = load(tmp_path)
+    sim = cfg.simulation
+    devices = dict(sim.devices)
+    devices["x"] = replace(devices["x"], positive_limit=4_010_000, home_switch=(3_990_000,
+                                                                               4_001_000))
+    object.__setattr__(cfg, "simulation", replace(sim, devices=devices))
+    world = SimWorld(cfg)
+    m = RawMaster(world)
+    m.run(10)
+    configure_csp(m)
+    m.nmt(0x01, 11)
+    drive = world.device("x")
+    enable(m, 0x20B, 4_000_000)
+    assert drive.load(0x60FD) == 1 << 2  # on the home switch
+    for target in range(4_002_000, 4_030_000, 2000):
+        m.sync({0x20B: rpdo(0x0F, target)})
+    assert drive.load(0x60FD) == 1 << 1  # positive limit switch
+    assert 4_010_000 <= drive.x < 4_013_000  # motion into the limit refused
+    assert drive.statusword() & cia402.SW_INTERNAL_LIMIT
+    assert drive.state is State.OPERATION_ENABLED  # no following-error fault
+    world.close()
+
+
+def test_unsupported_mode_is_refused(bus):
+    world, m = bus
+    with pytest.raises(SdoAbortError, match="06090030"):
+        m.sdo(11).download(0x6060, 0, b"\x03")  # PV: 6502h has PP, HM and CSP only
+    m.sdo(11).download(0x6060, 0, b"\x08")
+    assert m.sdo(11).upload_int(0x6061, 0) == 8
