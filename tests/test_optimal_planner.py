@@ -382,3 +382,22 @@ def test_planner_alone_n1_and_n3_and_reference():
                     assert pos == (300.0 * t,) * n
                     break
             assert synced
+
+
+@pytest.mark.parametrize("T,q,v", [(0.002, 1 / 409.6, 237.3), (0.001, 1 / 409.6, 300.0),
+                                   (0.004, 0.01, 555.5)])
+def test_synchronises_with_an_estimated_quantised_master(T, q, v):
+    """An encoder master through the estimator never matches a plan's prediction exactly:
+    the planner re-plans every sample and must still finish (snap within SNAP_SAMPLES)."""
+    import math as _m
+    from controller.tracking import MasterEstimator
+    est = MasterEstimator(T, window=16, lead_samples=2.0)
+    tr = Tracker(TrackerParams(sample_time_s=T, planner="optimal"), MotionState.at(100.0, 0, 0))
+    for k in range(1, int(1.0 / T)):
+        if k == 16:
+            tr.engage()  # once the estimator's window is full
+        est.push(_m.floor(v * (k - 1) * T / q) * q)
+        e = est.estimate()
+        tr.update(MotionState((e.pos, 0.0, 0.0), (e.vel, 0.0, 0.0), (e.acc, 0.0, 0.0)))
+    assert tr.state == TrackState.SYNCED and tr.error == TrackError.NONE
+    assert tr.synced_at * T < 0.4

@@ -234,3 +234,14 @@ def test_softmc_invariants_over_random_scenarios(v, ox, oy, oz, ang, acc, sample
     for q in ("vel", "acc", "jerk"):
         assert m.ratio["approach"][q] <= 1.01, (q, m.ratio["approach"])
     assert m.error_after_sync_mm <= 1e-6
+
+
+def test_disengage_with_a_reason_reports_it():
+    tr = Tracker(params(), MotionState.at(0, 0, 0))
+    m = conveyor((1, 0, 0), 300.0)
+    tr.engage()
+    for k in range(1, 200):
+        tr.update(m(k * T))
+    tr.disengage(TrackError.MASTER_LOST)
+    out = tr.update(m(200 * T))
+    assert out.state == TrackState.DESYNCING and out.error == TrackError.MASTER_LOST

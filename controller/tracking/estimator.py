@@ -8,7 +8,8 @@ p(t) = c0 + c1*t + c2*t^2 by least squares to the last ``window`` samples and ev
 A quadratic fit is exact for a constant-acceleration master, so the tracker's error after
 synchronisation stays at rounding level for such a master; on quantised data the window
 averages the quantisation noise (velocity noise ~ q/(T*window^1.5)).  With fewer samples
-than the window the fit uses what it has (1 sample: constant; 2: linear).
+than the window the fit uses what it has (1 sample: constant; fewer than half a window:
+linear — a quadratic through a few quantised samples has a huge acceleration error).
 
 The weights are fixed per (window, lead), precomputed once: an estimate costs 3*window
 multiply-adds.  Pure: samples in, estimate out; no clock.
@@ -64,7 +65,8 @@ class MasterEstimator:
         self.lead = float(lead_samples)
         self.degree = degree
         self._x: deque[float] = deque(maxlen=self.window)
-        self._w = {n: _weights(n, self.lead, self.sample_time_s, degree)
+        full = max(3, self.window // 2)
+        self._w = {n: _weights(n, self.lead, self.sample_time_s, degree if n >= full else 1)
                    for n in range(1, self.window + 1)}
         self._missed = 0
 

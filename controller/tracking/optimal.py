@@ -160,6 +160,18 @@ _INV_S = 1e3
 _SAFETY = 1e-9
 #: relative tolerance of the master-vs-prediction check (rounding only)
 _RTOL = 1e-11
+#: A master that deviates from the plan's prediction (an estimated, quantised encoder) makes
+#: the planner re-plan every sample and chase the noise; it may never finish a plan.  After
+#: such a re-plan the approach finishes at once (snap onto the master) when the plan would end
+#: within SNAP_SAMPLES samples, or when the re-plans have stopped making progress (the planned
+#: arrival time has slipped later for SNAP_STUCK samples in a row) and the relative state
+#: after this sample is within SNAP_JERKS * (J*T^3, J*T^2, J*T) in position, velocity and
+#: acceleration: a jump of the order of the estimate's own noise, which the setpoint copies
+#: after the switch anyway.  An exactly predicted master never snaps (its plans run to their
+#: end), nor does a smooth master with a jerk (its re-plans keep the arrival time).
+SNAP_SAMPLES = 3
+SNAP_STUCK = 3
+SNAP_JERKS = 4.0
 #: smallest weight of an axis (an idle axis can still correct small errors)
 _W_MIN = 1e-3
 #: relative margin of the weight floors
@@ -365,6 +377,8 @@ class OptimalPlanner:
         self.done = False
         self._k = 0
         self._retry_at = 0
+        self._stuck = 0  # re-plans in a row whose arrival slipped later
+        self._arrival = math.inf
 
     def step(self, mp: Vec, mv: Vec, ma: Vec) -> tuple[Vec, Vec, Vec, bool]:
         """The setpoint of this sample from the master (mp, mv, ma) of this sample."""
@@ -442,14 +456,30 @@ class OptimalPlanner:
                       ma[2] + r02 * q0 + r12 * q1 + r22 * q2)
         return p, v, a, False
 
-    def _start(self, plan: _Plan, mp: Vec, mv: Vec, ma: Vec) -> tuple[Vec, Vec, Vec, bool]:
-        """Make ``plan`` (starting at the last setpoint) current; its first sample."""
+    def _start(self, plan: _Plan, mp: Vec, mv: Vec, ma: Vec,
+               snap: bool = False) -> tuple[Vec, Vec, Vec, bool]:
+        """Make ``plan`` (starting at the last setpoint) current; its first sample.
+
+        ``snap``: the plan replaces one the master did not follow; if it ends within
+        ``SNAP_SAMPLES`` samples the approach finishes now.
+        """
         self.plan = plan
         self.n_plans += 1
         plan.k = 1
-        if self.T >= plan.duration:
+        T = self.T
+        if T >= plan.duration or (snap and plan.duration <= SNAP_SAMPLES * T):
             return self._finish(mp, mv, ma)
-        return self._sample(self.T, mp, mv, ma)
+        out = self._sample(T, mp, mv, ma)
+        if snap:
+            arrival = self._k * T + plan.duration
+            self._stuck = self._stuck + 1 if arrival > self._arrival + 0.5 * T else 0
+            self._arrival = arrival
+            J = self.limits.jerk * SNAP_JERKS
+            p, v, a, _ = out
+            if (self._stuck >= SNAP_STUCK and math.dist(p, mp) <= J * T * T * T
+                    and math.dist(v, mv) <= J * T * T and math.dist(a, ma) <= J * T):
+                return self._finish(mp, mv, ma)
+        return out
 
     # -- planning ---------------------------------------------------------------------
     def _plan_from(self, mp: Vec, mv: Vec, ma: Vec) -> _Plan | None:
@@ -469,7 +499,7 @@ class OptimalPlanner:
             if plan is None or plan.valid_until < math.inf:
                 self._retry_at = self._k + self._retry_samples
         if plan is not None:
-            return self._start(plan, mp, mv, ma)
+            return self._start(plan, mp, mv, ma, snap=True)
         self.plan = None
         return self._fallback(mv, ma)
 

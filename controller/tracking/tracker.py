@@ -76,6 +76,7 @@ class Tracker:
         self.error = TrackError.NONE
         self.mode = params.mode
         self._request: str | None = None
+        self._request_error = TrackError.NONE
         self._request_mode: Mode | None = None
         self._offset_pos: Vec = (0.0, 0.0, 0.0)
         self._offset_ang = 0.0
@@ -103,9 +104,14 @@ class Tracker:
             self._request_mode = m
         self._request = "engage"
 
-    def disengage(self) -> None:
-        """Start the de-sync at the next update (``slave = 0``)."""
+    def disengage(self, error: TrackError = TrackError.NONE) -> None:
+        """Start the de-sync at the next update (``slave = 0``).
+
+        ``error``: the reason when a shell stops the tracking for one (e.g.
+        ``TrackError.MASTER_LOST`` when the encoder falls silent); reported like the core's own.
+        """
         self._request = "disengage"
+        self._request_error = TrackError(error)
 
     def set_robot_state(self, state: MotionState) -> None:
         """Set the robot state while OFF (the setpoint another motion source produced)."""
@@ -187,6 +193,8 @@ class Tracker:
         if request == "engage" and self.state in (TrackState.OFF, TrackState.DESYNCING):
             self._start_sync(master)
         elif request == "disengage" and self.state in (TrackState.SYNCING, TrackState.SYNCED):
+            if self._request_error:
+                self.error = self._request_error
             self._start_desync(self.sample)
         self.sample += 1
         k = self.sample
