@@ -40,7 +40,7 @@ from canopen.objectdictionary import ObjectDictionary
 
 from ..errors import ConfigError
 from . import od as odm
-from .yamlmarks import Section, load_marked, suggest
+from ..yamlmarks import Section, load_marked, suggest
 
 __all__ = ["BusConfig", "MasterConfig", "Options", "PdoEntry", "PdoSetting", "SdoWrite",
            "SlaveConfig", "load_bus_config", "parse_bus_config"]

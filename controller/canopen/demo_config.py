@@ -21,7 +21,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
-from .yamlmarks import Section
+from ..yamlmarks import Section
 
 if TYPE_CHECKING:
     from .config import BusConfig

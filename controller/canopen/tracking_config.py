@@ -52,7 +52,7 @@ from ..errors import ConfigError, ParameterError
 from ..kinematics import KINEMATICS, AxisScale
 from ..tracking import PLANNERS, Limits, Mode, Rates, SoftMcOptions, TrackerParams
 from . import od as odm
-from .yamlmarks import Section
+from ..yamlmarks import Section
 
 if TYPE_CHECKING:
     from .config import BusConfig
@@ -142,7 +142,7 @@ def parse_tracking(s: Section, cfg: BusConfig) -> TrackingConfig:
 def _slave_ref(s: Section, key: str, cfg: BusConfig, profile: int, what: str) -> str:
     name = s.str(key)
     if name not in cfg.slaves:
-        from .yamlmarks import suggest
+        from ..yamlmarks import suggest
         raise s.error(key, f"(={name!r}) is not a slave of this bus" + suggest(name, cfg.slaves))
     prof = odm.profile(cfg.ods[name])
     if prof != profile:

@@ -108,9 +108,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Iterable
 
-import yaml
-
 from ..errors import ConfigError, ParameterError
+from ..yamlmarks import MarkedList, MarkedMap, load_marked
 from ..tracking import PLANNERS, Limits, Mode, MotionState, Rates, SoftMcOptions, TrackerParams
 from .master import SegmentError, build_profile
 
@@ -123,96 +122,10 @@ MAX_SAMPLES = 1_000_000
 _MISSING: Any = object()
 
 
-# -- YAML with line numbers --------------------------------------------------------------
-class _Mapping(dict):
-    """A YAML mapping that remembers where it starts and where each key and value is."""
-
-    line: int | None = None
-    key_lines: dict
-    value_lines: dict
-
-
-class _Sequence(list):
-    """A YAML sequence that remembers the line of each item."""
-
-    line: int | None = None
-    item_lines: list
-
-
-class _Loader(yaml.SafeLoader):
-    """SafeLoader recording 1-based lines; floats also without a dot (``2e-3``, YAML 1.2)."""
-
-
-_Loader.add_implicit_resolver(
-    "tag:yaml.org,2002:float",
-    re.compile(r"^[-+]?(?:[0-9][0-9_]*)(?:\.[0-9_]*)?[eE][-+]?[0-9]+$"),
-    list("-+0123456789"))
-
-
-def _construct_mapping(loader: _Loader, node: yaml.MappingNode) -> _Mapping:
-    loader.flatten_mapping(node)
-    m = _Mapping()
-    m.line = node.start_mark.line + 1
-    m.key_lines = {}
-    m.value_lines = {}
-    for key_node, value_node in node.value:
-        key = loader.construct_object(key_node, deep=True)
-        try:
-            hash(key)
-        except TypeError:
-            raise ConfigError("a mapping key must be a plain value", file=loader.name,
-                              line=key_node.start_mark.line + 1) from None
-        if key in m:
-            raise ConfigError(f"duplicate key (first given on line {m.key_lines[key]})",
-                              file=loader.name, line=key_node.start_mark.line + 1, key=str(key))
-        m[key] = loader.construct_object(value_node, deep=True)
-        m.key_lines[key] = key_node.start_mark.line + 1
-        m.value_lines[key] = value_node.start_mark.line + 1
-    return m
-
-
-def _construct_sequence(loader: _Loader, node: yaml.SequenceNode) -> _Sequence:
-    s = _Sequence(loader.construct_object(child, deep=True) for child in node.value)
-    s.line = node.start_mark.line + 1
-    s.item_lines = [child.start_mark.line + 1 for child in node.value]
-    return s
-
-
-_Loader.add_constructor("tag:yaml.org,2002:map", _construct_mapping)
-_Loader.add_constructor("tag:yaml.org,2002:seq", _construct_sequence)
-
-_KEY_LINE = re.compile(r"^\s*(?:-\s+)?([A-Za-z_][\w.-]*)\s*:")
-
-
-def _nearest_key(text: str, line: int) -> str | None:
-    """The last ``key:`` written on or before 1-based ``line`` (for YAML syntax errors)."""
-    lines = text.splitlines()
-    for i in range(min(line, len(lines)) - 1, -1, -1):
-        m = _KEY_LINE.match(lines[i])
-        if m:
-            return m.group(1)
-    return None
-
-
-def _load_yaml(text: str, file: str) -> Any:
-    loader = _Loader(text)
-    loader.name = file
-    try:
-        return loader.get_single_data()
-    except yaml.MarkedYAMLError as exc:
-        mark = exc.problem_mark or exc.context_mark
-        line = mark.line + 1 if mark is not None else None
-        where = exc.context_mark or exc.problem_mark
-        key = _nearest_key(text, where.line + 1) if where is not None else None
-        msg = f"YAML syntax error: {exc.problem}"
-        if exc.context:
-            ctx_line = f" started on line {exc.context_mark.line + 1}" if exc.context_mark else ""
-            msg += f" ({exc.context}{ctx_line})"
-        raise ConfigError(msg, file=file, line=line, key=key) from None
-    except yaml.YAMLError as exc:
-        raise ConfigError(f"YAML error: {exc}", file=file) from None
-    finally:
-        loader.dispose()
+# -- YAML with line numbers: the shared loader ------------------------------------------
+_Mapping = MarkedMap
+_Sequence = MarkedList
+_load_yaml = load_marked
 
 
 # -- validated values --------------------------------------------------------------------

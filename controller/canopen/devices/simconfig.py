@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 from .. import od as odm
-from ..yamlmarks import Section, suggest
+from ...yamlmarks import Section, suggest
 from .drive import DriveParams
 from .encoder import EncoderParams
 

@@ -1,0 +1,337 @@
+"""YAML with line marks, and a strict section reader that names file, line and key.
+
+Shared by every configuration reader (bus.yml in ``controller.canopen``, scenario files in
+``controller.simulate``).
+
+``load_marked(text, file)`` parses YAML (safe loader) into :class:`MarkedMap` /
+:class:`MarkedList` that remember the 1-based line of every key, value and item.  A
+:class:`Section` wraps one mapping with its dotted path and checks each value's type and range
+when read; :meth:`Section.finish` rejects the keys nobody read, suggesting the closest known
+key (dcfgen silently ignores unknown keys; we do not).
+
+Type rules are deliberately strict, because dcfgen coerces silently (``bool("false")`` is
+True, ``int(2.7)`` is 2): an integer field takes a YAML integer (decimal or ``0x`` hex) and
+nothing else; a bool field takes only ``true``/``false``; a float field takes an int or a
+float.
+"""
+
+from __future__ import annotations
+
+import difflib
+import math
+import re
+from collections.abc import Callable, Iterable, Iterator
+from typing import Any
+
+import yaml
+
+from .errors import ConfigError
+
+_MISSING: Any = object()
+
+
+class MarkedMap(dict):
+    """A YAML mapping with ``line`` (its start), ``key_lines`` and ``value_lines``."""
+
+    line: int | None = None
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.key_lines: dict = {}
+        self.value_lines: dict = {}
+
+
+class MarkedList(list):
+    """A YAML sequence with ``line`` and ``item_lines``."""
+
+    line: int | None = None
+
+    def __init__(self, items: Iterable[Any] = ()) -> None:
+        super().__init__(items)
+        self.item_lines: list[int] = []
+
+
+class _Loader(yaml.SafeLoader):
+    """SafeLoader with line marks; floats also without a dot or exponent sign (``3.0e7``,
+    YAML 1.2).  dcfgen (YAML 1.1) would read those as strings, but it never reads a float."""
+
+
+_Loader.add_implicit_resolver(
+    "tag:yaml.org,2002:float",
+    re.compile(r"^[-+]?(?:[0-9][0-9_]*)(?:\.[0-9_]*)?[eE][-+]?[0-9]+$"),
+    list("-+0123456789"))
+
+
+def _construct_mapping(loader: _Loader, node: yaml.MappingNode) -> MarkedMap:
+    own = sum(1 for k, _ in node.value if k.tag != "tag:yaml.org,2002:merge")
+    loader.flatten_mapping(node)
+    merged = len(node.value) - own  # pairs from "<<: *anchor" come first; own keys override
+    m = MarkedMap()
+    m.line = node.start_mark.line + 1
+    for i, (key_node, value_node) in enumerate(node.value):
+        if i < merged or (i >= merged and key_node.value in
+                          [k.value for k, _ in node.value[:merged]]
+                          and not _own_duplicate(node.value[merged:i], key_node)):
+            key = loader.construct_object(key_node, deep=True)
+            m[key] = loader.construct_object(value_node, deep=True)
+            m.key_lines[key] = key_node.start_mark.line + 1
+            m.value_lines[key] = value_node.start_mark.line + 1
+            continue
+        key = loader.construct_object(key_node, deep=True)
+        line = key_node.start_mark.line + 1
+        try:
+            hash(key)
+        except TypeError:
+            raise ConfigError("a mapping key must be a plain value", file=loader.name,
+                              line=line) from None
+        if key in m:
+            raise ConfigError(f"duplicate key (first given on line {m.key_lines[key]})",
+                              file=loader.name, line=line, key=str(key))
+        m[key] = loader.construct_object(value_node, deep=True)
+        m.key_lines[key] = line
+        m.value_lines[key] = value_node.start_mark.line + 1
+    return m
+
+
+def _own_duplicate(earlier: list, key_node: yaml.Node) -> bool:
+    return any(k.value == key_node.value for k, _ in earlier)
+
+
+def _construct_sequence(loader: _Loader, node: yaml.SequenceNode) -> MarkedList:
+    s = MarkedList(loader.construct_object(child, deep=True) for child in node.value)
+    s.line = node.start_mark.line + 1
+    s.item_lines = [child.start_mark.line + 1 for child in node.value]
+    return s
+
+
+_Loader.add_constructor("tag:yaml.org,2002:map", _construct_mapping)
+_Loader.add_constructor("tag:yaml.org,2002:seq", _construct_sequence)
+
+
+_KEY_LINE = re.compile(r"^\s*(?:-\s+)?([A-Za-z_][\w.-]*)\s*:")
+
+
+def _nearest_key(text: str, line: int) -> str | None:
+    """The last ``key:`` written on or before 1-based ``line`` (for YAML syntax errors)."""
+    lines = text.splitlines()
+    for i in range(min(line, len(lines)) - 1, -1, -1):
+        m = _KEY_LINE.match(lines[i])
+        if m:
+            return m.group(1)
+    return None
+
+
+def load_marked(text: str, file: str) -> Any:
+    """Parse ``text``; a syntax error becomes a ConfigError with the file, line and the
+    nearest key written before it."""
+    loader = _Loader(text)
+    loader.name = file
+    try:
+        return loader.get_single_data()
+    except yaml.MarkedYAMLError as exc:
+        mark = exc.problem_mark or exc.context_mark
+        line = mark.line + 1 if mark is not None else None
+        where = exc.context_mark or exc.problem_mark
+        key = _nearest_key(text, where.line + 1) if where is not None else None
+        msg = f"YAML syntax error: {exc.problem or exc}"
+        if exc.context:
+            ctx_line = f" started on line {exc.context_mark.line + 1}" if exc.context_mark else ""
+            msg += f" ({exc.context}{ctx_line})"
+        raise ConfigError(msg, file=file, line=line, key=key) from None
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"YAML error: {exc}", file=file) from None
+    finally:
+        loader.dispose()
+
+
+def suggest(key: str, known: Iterable[str]) -> str:
+    """``" (did you mean 'x'?)"`` for the closest known key, or ``""``."""
+    close = difflib.get_close_matches(str(key), [str(k) for k in known], n=1, cutoff=0.6)
+    return f" (did you mean '{close[0]}'?)" if close else ""
+
+
+def _type_name(value: Any) -> str:
+    if isinstance(value, bool):
+        return "a boolean"
+    if isinstance(value, int):
+        return "an integer"
+    if isinstance(value, float):
+        return "a number"
+    if isinstance(value, str):
+        return f"the string {value!r}"
+    if isinstance(value, dict):
+        return "a mapping"
+    if isinstance(value, list):
+        return "a list"
+    if value is None:
+        return "empty"
+    return type(value).__name__
+
+
+class Section:
+    """One mapping of a marked YAML file, read key by key with validation.
+
+    ``path`` is the dotted key path of the mapping (``""`` at the top level).  Every getter
+    records the key as known; :meth:`finish` raises on keys that were not read.
+    """
+
+    def __init__(self, data: Any, file: str, path: str = "", line: int | None = None,
+                 head: int | None = None) -> None:
+        if not isinstance(data, dict):
+            raise ConfigError(f"must be a mapping, not {_type_name(data)}", file=file,
+                              line=line, key=path or None)
+        self.data = data
+        self.file = file
+        self.path = path
+        self.line = getattr(data, "line", line)
+        #: the line of the key that introduced this section (for "required key is missing")
+        self.head = head if head is not None else self.line
+        self._known: list[str] = []
+
+    # -- locations ---------------------------------------------------------------------
+    def key_path(self, key: Any) -> str:
+        return f"{self.path}.{key}" if self.path else str(key)
+
+    def key_line(self, key: Any) -> int | None:
+        return getattr(self.data, "key_lines", {}).get(key, self.line)
+
+    def value_line(self, key: Any) -> int | None:
+        return getattr(self.data, "value_lines", {}).get(key, self.key_line(key))
+
+    def error(self, key: Any, message: str, *, at_value: bool = True) -> ConfigError:
+        line = self.value_line(key) if at_value else self.key_line(key)
+        return ConfigError(message, file=self.file, line=line, key=self.key_path(key))
+
+    def missing(self, key: str) -> ConfigError:
+        """A missing required key; a misspelt one present is reported instead."""
+        for other in self.data:
+            if other not in self._known and suggest(str(other), [key]):
+                return self.error(other, f"unknown key (did you mean '{key}'?)",
+                                  at_value=False)
+        return ConfigError("required key is missing", file=self.file, line=self.head,
+                           key=self.key_path(key))
+
+    # -- getters -----------------------------------------------------------------------
+    def has(self, key: Any) -> bool:
+        return key in self.data
+
+    def raw(self, key: Any, default: Any = _MISSING) -> Any:
+        self._known.append(key)
+        if key not in self.data:
+            if default is _MISSING:
+                raise self.missing(key)
+            return default
+        return self.data[key]
+
+    def int(self, key: Any, default: Any = _MISSING, *, min: int | None = None,
+            max: int | None = None, allowed: Iterable[int] | None = None) -> int:
+        value = self.raw(key, default)
+        if key not in self.data:
+            return value
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise self.error(key, f"must be an integer, not {_type_name(value)}")
+        self._check_range(key, value, min, max)
+        if allowed is not None and value not in set(allowed):
+            raise self.error(key, f"(={value}) must be one of {', '.join(map(str, allowed))}")
+        return value
+
+    def float(self, key: Any, default: Any = _MISSING, *, min: float | None = None,
+              max: float | None = None, above: float | None = None) -> float:
+        value = self.raw(key, default)
+        if key not in self.data:
+            return value
+        if isinstance(value, bool) or not isinstance(value, (int, float)) \
+                or not math.isfinite(value):
+            raise self.error(key, f"must be a finite number, not {_type_name(value)}")
+        if above is not None and not value > above:
+            raise self.error(key, f"(={value}) must be > {above}")
+        self._check_range(key, value, min, max)
+        return float(value)
+
+    def bool(self, key: Any, default: Any = _MISSING) -> bool:
+        value = self.raw(key, default)
+        if key not in self.data:
+            return value
+        if not isinstance(value, bool):
+            hint = " (dcfgen would read any non-empty string as true)" \
+                if isinstance(value, str) else ""
+            raise self.error(key, f"must be true or false, not {_type_name(value)}{hint}")
+        return value
+
+    def str(self, key: Any, default: Any = _MISSING,
+            choices: Iterable[str] | None = None) -> str:
+        value = self.raw(key, default)
+        if key not in self.data:
+            return value
+        if not isinstance(value, str) or not value:
+            raise self.error(key, f"must be a non-empty string, not {_type_name(value)}")
+        if choices is not None:
+            choices = list(choices)
+            if value not in choices:
+                raise self.error(key, f"(={value!r}) must be one of {', '.join(choices)}"
+                                 + suggest(value, choices))
+        return value
+
+    def vector(self, key: Any, n: int, default: Any = _MISSING) -> tuple[float, ...]:
+        value = self.raw(key, default)
+        if key not in self.data:
+            return value
+        if not isinstance(value, list) or len(value) != n or any(
+                isinstance(x, bool) or not isinstance(x, (int, float)) or not math.isfinite(x)
+                for x in value):
+            raise self.error(key, f"must be a list of {n} numbers, not {_type_name(value)}"
+                             + (f" of {len(value)} items" if isinstance(value, list) else ""))
+        return tuple(float(x) for x in value)
+
+    def section(self, key: Any, default: Any = _MISSING) -> Section | None:
+        value = self.raw(key, default)
+        if key not in self.data:
+            return value if value is None else Section(value, self.file, self.key_path(key),
+                                                       self.line)
+        return Section(value, self.file, self.key_path(key), self.value_line(key),
+                       self.key_line(key))
+
+    def list(self, key: Any, default: Any = _MISSING) -> list[tuple[Any, int | None, str]]:
+        """The items of a list as (item, line, dotted path)."""
+        value = self.raw(key, default)
+        if key not in self.data:
+            return [] if value is None else [(v, self.line, self.key_path(key)) for v in value]
+        if not isinstance(value, list):
+            raise self.error(key, f"must be a list, not {_type_name(value)}")
+        lines = getattr(value, "item_lines", [self.value_line(key)] * len(value))
+        return [(v, line, f"{self.key_path(key)}[{i}]")
+                for i, (v, line) in enumerate(zip(value, lines))]
+
+    def items(self) -> Iterator[tuple[Any, Any]]:
+        """All (key, value) pairs, marking every key as known."""
+        for key, value in self.data.items():
+            self._known.append(key)
+            yield key, value
+
+    def _check_range(self, key: Any, value: float, lo: float | None, hi: float | None) -> None:
+        if (lo is not None and value < lo) or (hi is not None and value > hi):
+            lo_s = "" if lo is None else _fmt(lo)
+            hi_s = "" if hi is None else _fmt(hi)
+            raise self.error(key, f"(={_fmt(value)}) must be in [{lo_s}...{hi_s}]")
+
+    def finish(self, extra_known: Iterable[str] = ()) -> None:
+        """Reject the keys that no getter asked for."""
+        known = list(self._known) + list(extra_known)
+        for key in self.data:
+            if key not in known:
+                raise self.error(key, "unknown key" + suggest(key, [str(k) for k in known]),
+                                 at_value=False)
+
+
+def _fmt(x: float) -> str:
+    if isinstance(x, int) and abs(x) >= 0x10000:
+        return f"{x} (0x{x:X})"
+    return f"{x:g}" if isinstance(x, float) else str(x)
+
+
+def item_section(item: Any, file: str, path: str, line: int | None) -> Section:
+    """A Section for one list item (a mapping)."""
+    return Section(item, file, path, line)
+
+
+Validator = Callable[[Section], Any]
