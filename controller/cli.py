@@ -34,6 +34,9 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "demo": ("controller.canopen.cmd_demo:main", "tracking demo on a simulated CANopen bus"),
     "run": ("controller.canopen.cmd_run:main", "the CANopen tracking controller on a CAN bus"),
     "sim-devices": ("controller.canopen.cmd_sim:main", "simulated encoder and drives on a CAN bus"),
+    "home": ("controller.canopen.cmd_home:main", "home axes (GotoY, drive homing mode, none)"),
+    "move": ("controller.canopen.cmd_move:main", "jerk-limited point-to-point move of an axis"),
+    "jog": ("controller.canopen.cmd_jog:main", "jog an axis at a speed for a time"),
     "fmu": ("controller.fmu.cli:main",
             "build and check the tracker FMU (FMI 2.0 / 3.0 co-simulation)"),
 }

@@ -22,6 +22,25 @@ scales).  Keys (``*`` = required)::
         axes:*                       # drive order; x, y, z in mm, c in deg
           x: {node:* x, counts_per_mm:* 1000, zero: 0, sign: 1, min: -1e9, max: 1e9}
           c: {node:* c, counts_per_deg:* 1000, ...}
+          y:                         # optional per axis, for home/move/jog (axis_motion):
+            motion: {vel: 200, acc: 2000, jerk: 50000,      # limits [mm/s, mm/s^2, mm/s^3]
+                     brake_release_s: 0, brake_engage_s: 0, stop_time_s: 0}
+            homing:
+              method: gotoy          # gotoy (slow-down + home switch, 60FDh bits 16 / 2)
+                                     #   | drive (the drive's homing mode 6060h = 6) | none
+              direction: -1          # gotoy: search towards -1 / +1
+              search_vel: 50         # gotoy: CONST speed [mm/s] (<= motion.vel)
+              creep_vel: 5           # gotoy: SMALL_V/DOGE/BACK speed [mm/s] (<= search)
+              push_in_counts: 0      # gotoy: DOGE push-in m [drive counts]
+              back_off: 0            # gotoy: BACK distance [mm]
+              timeout_s: 60          # gotoy: whole procedure; drive: "homing attained"
+              state_timeouts: {small_v_s: 10}   # gotoy: per state (HomingTimeouts fields)
+              home_offset: 0         # none: raw position [mm] of the axis' 0;
+                                     #   drive: 607Ch [mm]
+              drive_method: 19       # drive: 6098h
+              switch_vel: 50         # drive: 6099h:01 [mm/s]
+              zero_vel: 5            # drive: 6099h:02 [mm/s]
+              drive_acc: 500         # drive: 609Ah [mm/s^2]
       tracker:                       # controller.tracking.TrackerParams fields except
         planner: optimal             #   sample_time_s (= master.sync_period)
         mode: absolute               # absolute | relative | 3 | 5
@@ -76,10 +95,48 @@ class ConveyorConfig:
 
 
 @dataclass(frozen=True, slots=True)
+class AxisMotionConfig:
+    """Per-axis limits and brake times for point-to-point moves, homing and jog."""
+
+    vel: float = 200.0
+    acc: float = 2000.0
+    jerk: float = 50000.0
+    brake_release_s: float = 0.0
+    brake_engage_s: float = 0.0
+    stop_time_s: float = 0.0
+
+
+HOMING_METHODS = ("gotoy", "drive", "none")
+_STATE_TIMEOUTS = ("brake_s", "accel_s", "const_s", "deaccel_s", "small_v_s", "doge_s",
+                   "back_s")
+
+
+@dataclass(frozen=True, slots=True)
+class AxisHomingConfig:
+    """Per-axis ``homing:`` section (see the module docstring)."""
+
+    method: str = "gotoy"
+    direction: int = -1
+    search_vel: float = 50.0
+    creep_vel: float = 5.0
+    push_in_counts: int = 0
+    back_off: float = 0.0
+    timeout_s: float = 60.0
+    state_timeouts: tuple[tuple[str, float], ...] = ()
+    home_offset: float = 0.0
+    drive_method: int = 19
+    switch_vel: float | None = None
+    zero_vel: float | None = None
+    drive_acc: float | None = None
+
+
+@dataclass(frozen=True, slots=True)
 class AxisConfig:
     name: str
     node: str
     scale: AxisScale
+    motion: AxisMotionConfig = AxisMotionConfig()
+    homing: AxisHomingConfig | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -215,6 +272,8 @@ def _axes(s: Section, cfg: BusConfig, conveyor: ConveyorConfig) -> tuple[AxisCon
             raise a.error("max", f"(={hi}) must be > min (={lo})")
         scale = AxisScale(str(name), cpu, a.float("zero", 0.0),
                           a.int("sign", 1, allowed=(1, -1)), lo, hi)
+        motion = _axis_motion(a.section("motion", None))
+        homing = _axis_homing(a.section("homing", None), motion)
         a.finish()
         rp = pdos[node].find("rpdo", [(0x6040, 0), (0x607A, 0)])
         tp = pdos[node].find("tpdo", [(0x6041, 0), (0x6064, 0)])
@@ -224,10 +283,61 @@ def _axes(s: Section, cfg: BusConfig, conveyor: ConveyorConfig) -> tuple[AxisCon
         if tp is None or tp.transmission != 1:
             raise a.error("node", f"'{node}' needs an enabled TPDO with transmission 1 "
                                   "mapping 6041h and 6064h")
-        out.append(AxisConfig(str(name), node, scale))
+        out.append(AxisConfig(str(name), node, scale, motion, homing))
     if not out:
         raise s.error(next(iter(s.data), "axes"), "at least one axis is required")
     return tuple(out)
+
+
+def _axis_motion(s: Section | None) -> AxisMotionConfig:
+    d = AxisMotionConfig()
+    if s is None:
+        return d
+    out = AxisMotionConfig(
+        vel=s.float("vel", d.vel, above=0.0), acc=s.float("acc", d.acc, above=0.0),
+        jerk=s.float("jerk", d.jerk, above=0.0),
+        brake_release_s=s.float("brake_release_s", 0.0, min=0.0),
+        brake_engage_s=s.float("brake_engage_s", 0.0, min=0.0),
+        stop_time_s=s.float("stop_time_s", 0.0, min=0.0))
+    s.finish()
+    return out
+
+
+def _axis_homing(s: Section | None, motion: AxisMotionConfig) -> AxisHomingConfig | None:
+    if s is None:
+        return None
+    d = AxisHomingConfig()
+    method = s.str("method", d.method, choices=HOMING_METHODS)
+    search = s.float("search_vel", min(d.search_vel, motion.vel), above=0.0, max=motion.vel)
+    creep = s.float("creep_vel", min(d.creep_vel, search), above=0.0, max=search)
+    st = s.section("state_timeouts", None)
+    state_timeouts: list[tuple[str, float]] = []
+    if st is not None:
+        for key in _STATE_TIMEOUTS:
+            if st.has(key):
+                state_timeouts.append((key, st.float(key, above=0.0)))
+        st.finish()
+    drive_method = s.int("drive_method", d.drive_method, min=-128, max=127)
+    if method == "drive":
+        from ..motion import DriveHomingConfig
+        try:
+            DriveHomingConfig(drive_method, 1.0)
+        except ParameterError as exc:
+            raise s.error("drive_method", str(exc)) from None
+    out = AxisHomingConfig(
+        method=method, direction=s.int("direction", d.direction, allowed=(-1, 1)),
+        search_vel=search, creep_vel=creep,
+        push_in_counts=s.int("push_in_counts", 0, min=0),
+        back_off=s.float("back_off", 0.0, min=0.0),
+        timeout_s=s.float("timeout_s", d.timeout_s, above=0.0),
+        state_timeouts=tuple(state_timeouts),
+        home_offset=s.float("home_offset", 0.0),
+        drive_method=drive_method,
+        switch_vel=s.float("switch_vel", None, above=0.0),
+        zero_vel=s.float("zero_vel", None, above=0.0),
+        drive_acc=s.float("drive_acc", None, above=0.0))
+    s.finish()
+    return out
 
 
 # -- TrackerParams -------------------------------------------------------------------------

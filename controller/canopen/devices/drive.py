@@ -17,7 +17,16 @@ Behaves like a real drive where a controller can get it wrong:
 - 60FDh digital inputs from the position: bit0 negative / bit1 positive limit switch, bit2
   home switch, bit16 slow-down sensor; bit17 the touch-probe input level.  Moving into an
   active limit switch is refused (the demand is held) and 6041h bit 11 is set;
-- touch probe 1 (60B8h-60BAh): latch 6064h on the rising edge of the probe input.
+- touch probe 1 (60B8h-60BAh): latch 6064h on the rising edge of the probe input;
+- homing mode (6060h = 6, method 6098h, speed 6099h:01 [counts/s], offset 607Ch): started by
+  a rising edge of controlword bit 4 in OPERATION ENABLED; methods 17/18 (negative /
+  positive limit switch), 19-30 (home switch: 19, 20, 23-26 search in the positive
+  direction, 21, 22, 27-30 in the negative one; the position where the switch becomes
+  active is home), 35/37 (the current position).  The search runs at 6099h:01 without a
+  ramp; reaching a limit switch in the search direction (home-switch methods) or an
+  unsupported method is a homing error (6041h bit 13).  At home the reported position
+  becomes 607Ch (the switches stay where they physically are); bit 12 "homing attained"
+  and bit 10 "target reached" are then set.
 
 Servo model (one step per SYNC, dt = 60C2h; without SYNC a timer keeps a ramp going): the
 actual position x [counts] follows the demand d as a first-order lag with time constant
@@ -44,6 +53,10 @@ from .base import ABORT_VALUE_RANGE, NMT_OPERATIONAL, SimNode
 EMCY_FOLLOWING_ERROR = 0x8611
 EMCY_HEARTBEAT = 0x8130
 EMCY_GENERIC = 0x1000
+
+HM_START = 1 << 4  #: controlword bit 4 in homing mode: homing operation start
+HM_ATTAINED = 1 << 12  #: statusword bit 12 in homing mode: homing attained
+HM_ERROR = 1 << 13  #: statusword bit 13 in homing mode: homing error
 
 
 @dataclass(frozen=True)
@@ -82,6 +95,10 @@ class SimDrive(SimNode):
         self._probe_toggle = False
         self._last_step_ns = clock.now_ns()
         self._params: dict[tuple[int, int], int] = {}
+        #: reported position - physical position [counts] (changed by the homing mode)
+        self._home_shift = 0.0
+        #: homing mode: None (not started), "run", "done" or "error"
+        self.homing_status: str | None = None
         self._enter(State.SWITCH_ON_DISABLED, 1)
         self._publish()
 
@@ -161,6 +178,11 @@ class SimDrive(SimNode):
     def _apply_controlword(self) -> None:
         cw = int(self.load(0x6040, 0))
         result = cia402.transition_for(self.state, cw, self._prev_cw, self.param(0x605A))
+        if self.state is State.OPERATION_ENABLED and self.mode == cia402.MODE_HM:
+            if cw & HM_START and not self._prev_cw & HM_START:
+                self.homing_status = "run"
+            elif not cw & HM_START and self.homing_status == "run":
+                self.homing_status = None  # bit 4 low: homing interrupted
         self._prev_cw = cw
         if result is not None:
             if result[0] is State.READY_TO_SWITCH_ON and not self.enable_input:
@@ -180,6 +202,8 @@ class SimDrive(SimNode):
             self.x += step
             self.v = step / dt
             self._check_following_error(dt)
+        elif st is State.OPERATION_ENABLED and self.mode == cia402.MODE_HM:
+            self._homing_step(dt)
         elif st in (State.QUICK_STOP_ACTIVE, State.FAULT_REACTION_ACTIVE):
             decel = float(self.param(0x6085))
             speed = max(0.0, abs(self.v) - decel * dt)
@@ -194,6 +218,48 @@ class SimDrive(SimNode):
         else:
             self.v = 0.0
             self._following_error = False
+
+    def _homing_step(self, dt: float) -> None:
+        self.v = 0.0
+        self._following_error = False
+        if self.homing_status != "run":
+            return
+        method = self.param(0x6098)
+        if method >= 0x80:
+            method -= 0x100
+        if method in (35, 37):
+            self._homed()
+            return
+        if method in (17, 18):
+            direction, bit, stop_bit = (-1, 0x1, 0x1) if method == 17 else (1, 0x2, 0x2)
+        elif 19 <= method <= 30:
+            direction = 1 if method in (19, 20, 23, 24, 25, 26) else -1
+            bit, stop_bit = 0x4, (0x2 if direction > 0 else 0x1)
+        else:
+            self.homing_status = "error"  # not simulated (index pulse, manufacturer)
+            return
+        inputs = self._inputs()
+        if inputs & bit:
+            self._homed()
+            return
+        if inputs & stop_bit:
+            self.homing_status = "error"
+            return
+        speed = float(self.param(0x6099, 1))
+        step = direction * speed * dt
+        self.x += step
+        self.v = step / dt
+        self.demand = self.x
+        if self._inputs() & bit:
+            self._homed()
+
+    def _homed(self) -> None:
+        offset = float(self.param(0x607C))
+        self._home_shift += offset - self.x
+        self.x = offset
+        self.demand = offset
+        self.v = 0.0
+        self.homing_status = "done"
 
     def _limited_demand(self) -> float:
         d = self.demand
@@ -219,7 +285,7 @@ class SimDrive(SimNode):
 
     def _inputs(self) -> int:
         p = self.params
-        x = self.x
+        x = self.x - self._home_shift  # the switches are where they physically are
         bits = 0
         if p.negative_limit is not None and x <= p.negative_limit:
             bits |= 1 << 0
@@ -243,6 +309,11 @@ class SimDrive(SimNode):
             sw |= cia402.SW_FOLLOWS_TARGET
             if self._following_error:
                 sw |= cia402.SW_FOLLOWING_ERROR
+        if self.state is State.OPERATION_ENABLED and self.mode == cia402.MODE_HM:
+            if self.homing_status == "done":
+                sw |= cia402.SW_TARGET_REACHED | HM_ATTAINED
+            elif self.homing_status == "error":
+                sw |= cia402.SW_TARGET_REACHED | HM_ERROR
         if self._internal_limit:
             sw |= cia402.SW_INTERNAL_LIMIT
         return sw
@@ -275,6 +346,8 @@ class SimDrive(SimNode):
     def on_write(self, index: int, sub: int, value: Any) -> None:
         self._params.clear()  # (the value is stored after this hook: read again later)
         if index == 0x6060:
+            if value != cia402.MODE_HM:
+                self.homing_status = None
             supported = int(self.load(0x6502, 0))
             if value <= 0 or not supported >> (value - 1) & 1:
                 raise SdoAbortedError(ABORT_VALUE_RANGE)

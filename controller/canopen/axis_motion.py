@@ -1,0 +1,739 @@
+"""Axis motion on the CANopen controller: homing, point-to-point moves and jog (issue 7).
+
+The same cycle as tracking (:class:`~controller.canopen.cycle.Controller`: boot, SYNC, 402
+enable in CSP, supervision), but while RUNNING the setpoint of one axis comes from a pure
+:mod:`controller.motion` object instead of the tracker; the other axes hold where they
+were enabled.  Units: mm (deg for c), s; counts only at the drive boundary
+(:class:`~controller.kinematics.AxisScale`, machine coordinates).
+
+Jobs (one axis each; :class:`MotionController` runs a list of them one after the other in
+one session -- one boot, one enable -- and :func:`home` homes several axes that way):
+
+* :class:`MoveJob` -- :class:`~controller.motion.PointToPoint` (Sled_Y) to a target in
+  machine coordinates; the target must lie within the axis' min/max; it can be re-targeted
+  while moving (:meth:`MoveJob.set_target`, e.g. from ``on_cycle``).
+* :class:`JogJob` -- :class:`~controller.motion.Jog` at a speed for a time; stops
+  (jerk-limited) early so that it never passes the axis' min/max.
+* :class:`GotoYJob` -- :class:`~controller.motion.GotoY`: the slow-down sensor (60FDh bit
+  16), the home switch (bit 2) and the limit switches (bits 0/1) come from a drive TPDO
+  that maps 60FDh (transmission 1); a limit switch aborts with a clear error.
+* :class:`DriveHomingJob` -- the drive's own homing mode: 6098h/6099h/609Ah/607Ch by SDO,
+  6060h = 6, controlword bit 4 (after one cycle with it low), then statusword bit 12 (homing
+  attained, with bit 10) or bit 13 (homing error) within the configured time-out; then
+  607Ah = 6064h and 6060h = 8 (CSP) again, all SDO writes between two cycles.
+* :class:`NoHomingJob` -- absolute encoders: the configured offset, no motion.
+
+Every job ends in a :class:`MotionReport` (ok, result code, message, the states passed,
+end position in mm and counts, time).  The functions :func:`home`, :func:`move`,
+:func:`jog` run them on the embedded virtual bus with simulated devices (stepped time, the
+default) or on a given transport (a real bus: :class:`~.transport.RealtimeTransport`).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from ..errors import CanError, ConfigError
+from ..motion import (
+    AxisConfig as MotionAxisConfig,
+)
+from ..motion import (
+    AxisLimits,
+    GotoY,
+    HomingConfig,
+    HomingTimeouts,
+    Jog,
+    MotionResult,
+    PointToPoint,
+)
+from ..motion.profile import stopping_distance_mm
+from . import cia402
+from .axisio import AxisIO, DriveInput
+from .cycle import Controller, CycleRecord, Phase
+from .pdo import PdoCodec, effective_pdos
+from .sdo import SdoClient
+from .tracking_config import AxisConfig, AxisHomingConfig
+
+#: 60FDh digital input bits (CiA 402-2; bit 16 is the manufacturer-specific slow-down input)
+DI_NEG_LIMIT = 1 << 0
+DI_POS_LIMIT = 1 << 1
+DI_HOME = 1 << 2
+DI_SLOW_DOWN = 1 << 16
+
+CW_HOMING_START = 1 << 4  #: controlword bit 4 in homing mode
+SW_HOMING_ATTAINED = 1 << 12  #: statusword bit 12 in homing mode
+SW_HOMING_ERROR = 1 << 13  #: statusword bit 13 in homing mode
+
+
+class MotionError(CanError):
+    """A motion job could not be started (bad target, missing 60FDh mapping, ...)."""
+
+
+@dataclass
+class MotionReport:
+    """The result of one job on one axis (mm/deg, counts, s)."""
+
+    kind: str  #: "home" | "move" | "jog"
+    axis: str
+    ok: bool = False
+    result: str = "IDLE"  #: :class:`~controller.motion.MotionResult` name (or TIMEOUT ...)
+    message: str = ""
+    states: list[str] = field(default_factory=list)  #: states passed, in order
+    start_mm: float = math.nan
+    end_mm: float = math.nan  #: actual position at the end (machine coordinate)
+    end_counts: int = 0  #: 6064h at the end
+    setpoint_mm: float = math.nan  #: the last setpoint (exact end position of the profile)
+    home_offset_mm: float | None = None  #: homing: the raw position of the axis' 0
+    time_s: float = 0.0  #: from the job's start to its end
+    cycles: int = 0
+    targets: list[int] = field(default_factory=list)  #: 607Ah sent each cycle [counts]
+    actuals: list[int] = field(default_factory=list)  #: 6064h received each cycle [counts]
+    inputs: list[int] = field(default_factory=list)  #: 60FDh each cycle (homing)
+
+    @property
+    def homed_end_mm(self) -> float | None:
+        """The end position in the homed coordinate (raw - home offset)."""
+        return None if self.home_offset_mm is None else self.end_mm - self.home_offset_mm
+
+    def summary(self) -> str:
+        unit = "deg" if self.axis == "c" else "mm"
+        lines = [f"{self.kind} {self.axis}: {'OK' if self.ok else 'FAILED'} ({self.result})"
+                 + (f": {self.message}" if self.message else ""),
+                 f"  states:   {' -> '.join(self.states) if self.states else '-'}",
+                 f"  start:    {self.start_mm:.4f} {unit}",
+                 (f"  end:      {self.end_mm:.4f} {unit} ({self.end_counts} counts), "
+                  f"setpoint {self.setpoint_mm:.4f} {unit}"),
+                 f"  time:     {self.time_s:.3f} s ({self.cycles} cycles)"]
+        if self.home_offset_mm is not None:
+            lines.append(f"  home offset: {self.home_offset_mm:.4f} {unit} (end at "
+                         f"{self.homed_end_mm:.4f} {unit} in homed coordinates)")
+        return "\n".join(lines)
+
+
+def _motion_axis_config(ax: AxisConfig, period_s: float) -> MotionAxisConfig:
+    m = ax.motion
+    return MotionAxisConfig(AxisLimits(m.vel, m.acc, m.jerk), period_s, m.brake_release_s,
+                            m.brake_engage_s, m.stop_time_s)
+
+
+class Job:
+    """One axis' motion; ``cycle()`` is called once per RUNNING cycle and returns
+    (controlword, target counts) for the axis' RPDO."""
+
+    kind = "?"
+
+    def __init__(self, ax: AxisConfig, period_s: float) -> None:
+        self.ax = ax
+        self.period_s = period_s
+        self.report = MotionReport(self.kind, ax.name)
+        self.done = False
+        self.io: AxisIO | None = None
+        self.started = False
+        self._k0 = 0
+
+    # -- hooks ------------------------------------------------------------------------------
+    #: GotoY needs 60FDh; moves and jogs use it (limit switches) when it is mapped
+    needs_inputs = False
+
+    def attach(self, ctl: MotionController, io: AxisIO) -> None:
+        self.io = io
+        self.di = 0
+        self.di_mapped = False
+        cfg = ctl.cfg
+        tp = effective_pdos(cfg)[io.node].find("tpdo", [(0x60FD, 0)])
+        if tp is None or tp.transmission != 1:
+            if self.needs_inputs:
+                raise MotionError(
+                    f"axis {self.ax.name}: {self.kind} needs 60FDh (digital inputs) of "
+                    f"'{io.node}' mapped in an enabled TPDO with transmission 1")
+            return
+        self.di_mapped = True
+        self._codec = PdoCodec(tp, cfg.ods[io.node])
+        self._di_pos = self._codec.position(0x60FD)
+        ctl.transport.subscribe(tp.cob_id, self._on_di)
+
+    def _on_di(self, can_id: int, data: bytes, t_ns: int) -> None:
+        self.di = int(self._codec.unpack(data)[self._di_pos])
+
+    def start(self, ctl: MotionController, k: int, actual_mm: float) -> None:
+        self.started = True
+        self._k0 = k
+        self.report.start_mm = actual_mm
+
+    def between(self, ctl: MotionController) -> None:
+        """Called between two cycles (SDO transfers go here)."""
+
+    def cycle(self, ctl: MotionController, k: int) -> tuple[int, int]:
+        raise NotImplementedError
+
+    def masks_bit13(self) -> bool:
+        """True while the drive is in homing mode (bit 13 is then 'homing error')."""
+        return False
+
+    # -- helpers ----------------------------------------------------------------------------
+    def state(self, name: str) -> None:
+        if not self.report.states or self.report.states[-1] != name:
+            self.report.states.append(name)
+
+    def finish(self, ctl: MotionController, k: int, ok: bool, result: str,
+               message: str = "") -> None:
+        if self.done:
+            return
+        self.done = True
+        r = self.report
+        r.ok, r.result, r.message = ok, result, message
+        r.cycles = k - self._k0 + 1
+        r.time_s = r.cycles * self.period_s
+
+
+class _SetpointJob(Job):
+    """Jobs whose setpoint [mm] comes from a motion object each cycle."""
+
+    def __init__(self, ax: AxisConfig, period_s: float) -> None:
+        super().__init__(ax, period_s)
+        self.obj: Any = None
+        self.setpoint_mm = 0.0
+        self._error: Any = None
+
+    def output(self, ctl: MotionController, k: int):
+        raise NotImplementedError
+
+    def cycle(self, ctl: MotionController, k: int) -> tuple[int, int]:
+        out = self.output(ctl, k)
+        self.state(out.state.name)
+        self.setpoint_mm = out.position_mm
+        self.report.setpoint_mm = out.position_mm
+        sc = self.ax.scale
+        if self.checks_limits and self.di & (DI_NEG_LIMIT | DI_POS_LIMIT):
+            # moving into an active limit switch (60FDh bit 0 / 1): abort
+            v = out.velocity_mm_s * sc.sign
+            which = ("negative", 0) if self.di & DI_NEG_LIMIT and v < 0 else \
+                ("positive", 1) if self.di & DI_POS_LIMIT and v > 0 else None
+            if which is not None:
+                self.report.inputs.append(self.di)
+                ctl.fail_job(k, f"{which[0]} limit switch (60FDh bit {which[1]}) active at "
+                                f"{sc.from_counts(self.io.input.actual):.4f} while moving",
+                             result="ERROR_LIMIT_SWITCH")
+                return cia402.CW_QUICK_STOP_CMD, self.io.target
+        if self.checks_limits and not sc.min <= out.position_mm <= sc.max:
+            ctl.fail_job(k, f"setpoint {out.position_mm:.4f} outside [{sc.min:g}, {sc.max:g}]")
+            return cia402.CW_QUICK_STOP_CMD, self.io.target
+        if out.result < 0 and self._error is None:
+            self._error = out  # the motion object stops (ABORT, brake): follow it to rest
+        if out.result is not MotionResult.WORKING and out.state.name in ("STOP", "READY"):
+            first = self._error or out
+            self.finish(ctl, k, first.result is MotionResult.FINISHED, first.result.name,
+                        first.message)
+            self.ended(out)
+        return cia402.CW_ENABLE, sc.to_counts(out.position_mm)
+
+    checks_limits = True
+
+    def ended(self, out) -> None:
+        pass
+
+
+class MoveJob(_SetpointJob):
+    """Point-to-point move (Sled_Y) to ``target_mm`` (machine coordinate)."""
+
+    kind = "move"
+
+    def __init__(self, ax: AxisConfig, period_s: float, target_mm: float) -> None:
+        super().__init__(ax, period_s)
+        self._check(target_mm)
+        self.target_mm = float(target_mm)
+        self.obj: PointToPoint | None = None
+
+    def _check(self, target_mm: float) -> None:
+        sc = self.ax.scale
+        if not (math.isfinite(target_mm) and sc.min <= target_mm <= sc.max):
+            raise MotionError(f"axis {self.ax.name}: target {target_mm} outside the axis "
+                              f"limits [{sc.min:g}, {sc.max:g}]")
+
+    def start(self, ctl: MotionController, k: int, actual_mm: float) -> None:
+        super().start(ctl, k, actual_mm)
+        self.obj = PointToPoint(_motion_axis_config(self.ax, self.period_s), actual_mm)
+        self.obj.set_target(self.target_mm)
+
+    def set_target(self, target_mm: float) -> None:
+        """Re-target (also while moving: re-planned from the present p, v, a)."""
+        self._check(target_mm)
+        self.target_mm = float(target_mm)
+        if self.obj is not None:
+            self.obj.set_target(self.target_mm)
+
+    def output(self, ctl: MotionController, k: int):
+        return self.obj.update()
+
+
+class JogJob(_SetpointJob):
+    """Jog at ``speed`` [mm/s] for ``time_s``, then stop; never past min/max."""
+
+    kind = "jog"
+
+    def __init__(self, ax: AxisConfig, period_s: float, speed: float, time_s: float) -> None:
+        super().__init__(ax, period_s)
+        if not math.isfinite(speed) or abs(speed) > ax.motion.vel or speed == 0:
+            raise MotionError(f"axis {ax.name}: jog speed {speed} must be non-zero and "
+                              f"within +-{ax.motion.vel:g} (motion.vel)")
+        if not time_s > 0:
+            raise MotionError(f"jog time {time_s} must be > 0")
+        self.speed = float(speed)
+        self.n_run = max(1, round(time_s / period_s))
+        self.obj: Jog | None = None
+        self.soft_limit = False
+
+    def start(self, ctl: MotionController, k: int, actual_mm: float) -> None:
+        super().start(ctl, k, actual_mm)
+        self.obj = Jog(_motion_axis_config(self.ax, self.period_s), actual_mm)
+        self.obj.set_velocity(self.speed)
+
+    def output(self, ctl: MotionController, k: int):
+        jog = self.obj
+        if k - self._k0 == self.n_run:
+            jog.stop()
+        kin = jog.kinematic_state
+        if jog.velocity_command_mm_s != 0.0 and kin.velocity_mm_s != 0.0:
+            # stop early enough: where would a stop that starts after the next sample end?
+            v = kin.velocity_mm_s
+            ahead = kin.position_mm + 2.0 * abs(v) * self.period_s * math.copysign(1.0, v)
+            reach = stopping_distance_mm(kin, jog.config.limits)
+            end = ahead + reach if v > 0 else ahead - abs(reach)
+            sc = self.ax.scale
+            if not sc.min <= end <= sc.max:
+                jog.stop()
+                self.soft_limit = True
+        return jog.update()
+
+    def ended(self, out) -> None:
+        if self.soft_limit and self.report.ok:
+            self.report.message = "stopped early at the axis limit"
+
+
+class GotoYJob(_SetpointJob):
+    """Sensor homing (GotoY) with the drive's 60FDh inputs."""
+
+    kind = "home"
+    checks_limits = False  # the position is not known before homing
+
+    def __init__(self, ax: AxisConfig, period_s: float) -> None:
+        super().__init__(ax, period_s)
+        h = ax.homing or AxisHomingConfig()
+        m = ax.motion
+        self.config = HomingConfig(
+            AxisLimits(m.vel, m.acc, m.jerk), period_s, h.search_vel, h.creep_vel,
+            h.push_in_counts, ax.scale.counts_per_unit, h.back_off, h.direction,
+            m.brake_release_s, m.brake_engage_s,
+            HomingTimeouts(total_s=h.timeout_s, **dict(h.state_timeouts)))
+        self.obj: GotoY | None = None
+
+    needs_inputs = True
+
+    def start(self, ctl: MotionController, k: int, actual_mm: float) -> None:
+        super().start(ctl, k, actual_mm)
+        self.obj = GotoY(self.config, actual_mm)
+        self.obj.start()
+
+    def output(self, ctl: MotionController, k: int):
+        di = self.di
+        self.report.inputs.append(di)
+        return self.obj.update(bool(di & DI_SLOW_DOWN), bool(di & DI_HOME),
+                               limit_neg=bool(di & DI_NEG_LIMIT),
+                               limit_pos=bool(di & DI_POS_LIMIT))
+
+    def ended(self, out) -> None:
+        self.report.home_offset_mm = out.home_offset_mm
+
+
+class NoHomingJob(Job):
+    kind = "home"
+
+    def cycle(self, ctl: MotionController, k: int) -> tuple[int, int]:
+        self.state("NONE")
+        h = self.ax.homing or AxisHomingConfig(method="none")
+        self.report.home_offset_mm = h.home_offset
+        self.report.setpoint_mm = self.report.start_mm
+        self.finish(ctl, k, True, MotionResult.FINISHED.name, "absolute encoder: no homing")
+        return cia402.CW_ENABLE, self.io.hold if self.io.hold is not None else self.io.target
+
+
+class DriveHomingJob(Job):
+    """The drive's own homing mode (6060h = 6)."""
+
+    kind = "home"
+
+    def __init__(self, ax: AxisConfig, period_s: float) -> None:
+        super().__init__(ax, period_s)
+        self.h = ax.homing or AxisHomingConfig(method="drive")
+        self.phase = "setup"
+        self._k_start = 0
+        self._error: tuple[str, str] | None = None
+        self.sdo: SdoClient | None = None
+
+    def attach(self, ctl: MotionController, io: AxisIO) -> None:
+        super().attach(ctl, io)
+        t = ctl.tc.timeouts
+        self.sdo = SdoClient(ctl.transport, io.node_id, io.label, t.sdo_s, t.sdo_retries)
+
+    def masks_bit13(self) -> bool:
+        return self.phase in ("low", "run", "back")
+
+    def _u32(self, mm: float) -> bytes:
+        return max(1, round(mm * self.ax.scale.counts_per_unit)).to_bytes(4, "little")
+
+    def between(self, ctl: MotionController) -> None:
+        if not self.started:
+            return
+        sdo = self.sdo
+        if self.phase == "setup":
+            h = self.h
+            sdo.download(0x6098, 0, h.drive_method.to_bytes(1, "little", signed=True))
+            if h.switch_vel is not None:
+                sdo.download(0x6099, 1, self._u32(h.switch_vel))
+            if h.zero_vel is not None:
+                sdo.download(0x6099, 2, self._u32(h.zero_vel))
+            if h.drive_acc is not None:
+                sdo.download(0x609A, 0, self._u32(h.drive_acc))
+            offset = round(h.home_offset * self.ax.scale.counts_per_unit)
+            sdo.download(0x607C, 0, offset.to_bytes(4, "little", signed=True))
+            sdo.download(0x6060, 0, bytes([cia402.MODE_HM]))
+            self.phase = "low"
+            self.state("SETUP")
+        elif self.phase == "back":
+            actual = sdo.upload_int(0x6064, 0)
+            sdo.download(0x607A, 0, actual.to_bytes(4, "little", signed=True))
+            sdo.download(0x6060, 0, bytes([cia402.MODE_CSP]))
+            self.io.hold = actual
+            self.phase = "csp"
+            self.state("CSP")
+
+    def cycle(self, ctl: MotionController, k: int) -> tuple[int, int]:
+        io = self.io
+        inp = io.input
+        actual = inp.actual if inp is not None else io.target
+        if self.phase == "setup":
+            return cia402.CW_ENABLE, actual
+        if self.phase == "low":
+            self.phase = "run"
+            self._k_start = k
+            return cia402.CW_ENABLE, actual
+        if self.phase == "run":
+            self.state("HOMING")
+            sw = inp.statusword if inp is not None else 0
+            if sw & SW_HOMING_ERROR:
+                self._error = ("ERROR_HOMING",
+                               (f"the drive reports a homing error (statusword {sw:04X}h "
+                                f"bit 13), method {self.h.drive_method}"))
+            elif sw & SW_HOMING_ATTAINED and sw & cia402.SW_TARGET_REACHED:
+                self.state("ATTAINED")
+            elif (k - self._k_start) * self.period_s > self.h.timeout_s:
+                self._error = ("ERROR_TIMEOUT",
+                               (f"homing not attained within {self.h.timeout_s:g} s (method "
+                                f"{self.h.drive_method}, statusword {sw:04X}h)"))
+            else:
+                return cia402.CW_ENABLE | CW_HOMING_START, actual
+            self.phase = "back"
+            return cia402.CW_ENABLE, actual  # bit 4 low: ends (or interrupts) the homing
+        if self.phase == "back":
+            return cia402.CW_ENABLE, actual
+        # phase csp: back in CSP, holding
+        self.report.setpoint_mm = self.ax.scale.from_counts(io.hold)
+        if self._error is None:
+            self.report.home_offset_mm = 0.0  # the drive's position is now homed
+            self.finish(ctl, k, True, MotionResult.FINISHED.name,
+                        f"drive homing method {self.h.drive_method} attained")
+        else:
+            self.finish(ctl, k, False, *self._error)
+        return cia402.CW_ENABLE, io.hold
+
+
+def make_home_job(ax: AxisConfig, period_s: float) -> Job:
+    method = ax.homing.method if ax.homing is not None else "gotoy"
+    if method == "none":
+        return NoHomingJob(ax, period_s)
+    if method == "drive":
+        return DriveHomingJob(ax, period_s)
+    return GotoYJob(ax, period_s)
+
+
+class _JobApp:
+    """The Application the cycle sees: ends the run when the jobs are done."""
+
+    def __init__(self) -> None:
+        self.ctl: MotionController | None = None
+
+    def start(self, ctl: Controller, cycle: int) -> None:
+        pass
+
+    def update(self, ctl, cycle, belt):  # not called: MotionController._run_step
+        raise AssertionError
+
+    def master_lost(self, ctl: Controller, cycle: int) -> None:
+        pass
+
+    def done(self, ctl: Controller, cycle: int) -> bool:
+        return ctl.all_done
+
+
+class MotionController(Controller):
+    """The cycle with :class:`Job` s instead of the tracker, run one after the other in one
+    session (one boot, one enable); the axes without a running job hold.  A failed job
+    ends the session."""
+
+    def __init__(self, cfg, transport, jobs: Job | Sequence[Job], **kw: Any) -> None:
+        super().__init__(cfg, transport, _JobApp(), **kw)
+        self.jobs = [jobs] if isinstance(jobs, Job) else list(jobs)
+        if not self.jobs:
+            raise MotionError("no motion job")
+        self.index = 0
+        self.ios: list[AxisIO] = []
+        for job in self.jobs:
+            io = next((a for a in self.axes if a.axis == job.ax.name), None)
+            if io is None:
+                raise MotionError(f"no axis {job.ax.name!r}")
+            self.ios.append(io)
+            job.attach(self, io)
+
+    @property
+    def job(self) -> Job:
+        """The job running (or the last one)."""
+        return self.jobs[self.index]
+
+    @property
+    def io(self) -> AxisIO:
+        return self.ios[self.index]
+
+    @property
+    def all_done(self) -> bool:
+        job = self.job
+        return job.done and (not job.report.ok or self.index == len(self.jobs) - 1)
+
+    def fail_job(self, k: int, message: str, result: str = "ERROR_LIMIT") -> None:
+        t_s = (self.clock.now_ns() - self.t0) * 1e-9
+        self.quick_stop(k, t_s, self.io.label, "limit", message)
+        self.job.finish(self, k, False, result, message)
+
+    def _supervise(self, k: int, t_s: float) -> None:
+        io = self.io
+        raw = io.input
+        masked = self.job.masks_bit13() and raw is not None
+        if masked:
+            io.input = DriveInput(raw.statusword & ~cia402.SW_FOLLOWING_ERROR, raw.actual,
+                                  raw.t_ns, raw.cycle)
+        try:
+            super()._supervise(k, t_s)
+        finally:
+            if masked:
+                io.input = raw
+
+    def _run_step(self, k: int, t_s: float, est) -> tuple[float, ...]:
+        if self.job.done and not self.all_done:
+            self.index += 1
+        job = self.job
+        if not job.started:
+            job.start(self, k, self.io.scale.from_counts(self.io.hold))
+        out = []
+        for a in self.axes:
+            if a is self.io and not job.done:
+                cw, target = job.cycle(self, k)
+                inp = a.input
+                job.report.targets.append(target)
+                job.report.actuals.append(inp.actual if inp is not None else 0)
+                if job.done:
+                    a.hold = target
+            else:
+                cw, target = cia402.CW_ENABLE, a.hold
+            if self.phase is Phase.STOPPING:
+                cw = cia402.CW_QUICK_STOP_CMD
+            a.send(cw, target)
+            out.append(a.scale.from_counts(target))
+        return tuple(out)
+
+
+# -- running ---------------------------------------------------------------------------------
+ProgressFn = Callable[[MotionController, CycleRecord], None]
+
+
+def run_jobs(ctl: MotionController, max_time_s: float = 600.0,
+             boot: bool = True) -> list[MotionReport]:
+    """Boot, enable, run the jobs until they are done (or one fails); returns the reports
+    of the jobs that ran (a job after a failure does not run)."""
+    if boot:
+        ctl.boot()
+    ctl.start()
+    max_cycles = int(max_time_s / ctl.cfg.period_s) + 1
+    try:
+        while ctl.k < max_cycles:
+            if ctl.phase is Phase.RUNNING and ctl.job.started and not ctl.job.done:
+                ctl.job.between(ctl)
+            ctl.step()
+            if ctl.phase is Phase.RUNNING and ctl.all_done:
+                break
+            if ctl.phase is Phase.STOPPED:
+                break
+            if ctl.phase is Phase.STOPPING and ctl._stop_cycles > ctl.STOP_CYCLES_MAX:
+                break
+        else:
+            ctl.job.finish(ctl, ctl.k - 1, False, "ERROR_TIMEOUT",
+                           f"not done within {max_time_s:g} s")
+        if ctl.phase is Phase.RUNNING:
+            # let the drive settle on the last setpoint before reading the end position
+            for _ in range(5):
+                ctl.step()
+            ctl.disable()
+    except CanError as exc:
+        ctl.job.finish(ctl, ctl.k, False, "ERROR", str(exc))
+    job = ctl.job
+    reasons = "; ".join(f"{e.source}: {e.detail}" for e in ctl.events if e.reaction)
+    if ctl.failure is not None and not job.done:
+        job.finish(ctl, ctl.k, False, "ERROR", str(ctl.failure))
+    if not job.done:
+        job.finish(ctl, ctl.k, False, "ERROR", reasons or "stopped")
+    elif not job.report.ok and not job.report.message:
+        job.report.message = reasons
+    reports = []
+    for j, io in zip(ctl.jobs[:ctl.index + 1], ctl.ios):
+        r = j.report
+        if io.input is not None:
+            r.end_counts = io.input.actual
+            r.end_mm = io.scale.from_counts(io.input.actual)
+        reports.append(r)
+    return reports
+
+
+def run_job(ctl: MotionController, max_time_s: float = 600.0, boot: bool = True) -> MotionReport:
+    """:func:`run_jobs` for one job: its report."""
+    return run_jobs(ctl, max_time_s, boot)[-1]
+
+
+def _load(config) -> Any:
+    from .config import BusConfig, load_bus_config
+    cfg = config if isinstance(config, BusConfig) else load_bus_config(Path(config))
+    if cfg.tracking is None:
+        raise ConfigError("no .tracking section: no axes", file=cfg.file)
+    return cfg
+
+
+def _axis(cfg, name: str | None) -> AxisConfig:
+    axes = cfg.tracking.axes
+    if name is None:
+        return axes[0]
+    for a in axes:
+        if a.name == name:
+            return a
+    raise MotionError(f"no axis {name!r} (axes: {', '.join(a.name for a in axes)})")
+
+
+def _run(cfg, jobs: Job | list[Job], transport=None, on_cycle: ProgressFn | None = None,
+         max_time_s: float = 600.0, setup: Callable[[Any], None] | None = None,
+         keep_trace: bool = False) -> list[MotionReport]:
+    if transport is not None:
+        ctl = MotionController(cfg, transport, jobs, on_cycle=on_cycle, keep_trace=keep_trace)
+        return run_jobs(ctl, max_time_s)
+    from .world import SimWorld
+    with SimWorld(cfg) as world:
+        if setup is not None:
+            setup(world)
+        ctl = MotionController(cfg, world.transport, jobs, on_cycle=on_cycle,
+                               keep_trace=keep_trace)
+        return run_jobs(ctl, max_time_s)
+
+
+def move(config, axis: str, to: float, *, transport=None, on_cycle: ProgressFn | None = None,
+         max_time_s: float = 600.0, setup=None) -> MotionReport:
+    """Move ``axis`` to ``to`` [mm|deg, machine coordinate].  ``config``: bus.yml path or a
+    loaded BusConfig; ``transport``: a real bus (default: the simulated devices, stepped)."""
+    cfg = _load(config)
+    ax = _axis(cfg, axis)
+    return _run(cfg, MoveJob(ax, cfg.period_s, to), transport, on_cycle, max_time_s,
+                setup)[0]
+
+
+def jog(config, axis: str, speed: float, time_s: float, *, transport=None,
+        on_cycle: ProgressFn | None = None, max_time_s: float = 600.0,
+        setup=None) -> MotionReport:
+    """Jog ``axis`` at ``speed`` [mm/s] for ``time_s`` [s], then stop."""
+    cfg = _load(config)
+    ax = _axis(cfg, axis)
+    return _run(cfg, JogJob(ax, cfg.period_s, speed, time_s), transport, on_cycle,
+                max_time_s, setup)[0]
+
+
+def home(config, axis: str | Sequence[str] | None = None, *, transport=None,
+         on_cycle: ProgressFn | None = None, max_time_s: float = 600.0,
+         setup=None) -> list[MotionReport]:
+    """Home ``axis`` (a name, several, or None = every axis with a ``homing:`` section, in
+    the configured order) with its configured method, one after the other in one session;
+    stops at the first failure (the later axes get no report)."""
+    cfg = _load(config)
+    if axis is None:
+        names = [a.name for a in cfg.tracking.axes if a.homing is not None]
+        if not names:
+            raise MotionError("no axis has a homing: section")
+    elif isinstance(axis, str):
+        names = [axis]
+    else:
+        names = list(axis)
+    jobs = [make_home_job(_axis(cfg, name), cfg.period_s) for name in names]
+    return _run(cfg, jobs, transport, on_cycle, max_time_s, setup)
+
+
+# -- command line (cmd_home, cmd_move, cmd_jog) ----------------------------------------------
+def add_common_arguments(p) -> None:
+    from . import canbus
+    p.add_argument("config", help="bus.yml with a .tracking section (axes, motion, homing)")
+    canbus.add_arguments(p)
+    p.add_argument("--max-time", type=float, default=600.0, metavar="S",
+                   help="give up after this many seconds (default 600)")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress display")
+
+
+def real_bus_requested(args) -> bool:
+    return bool(getattr(args, "interface", None) or getattr(args, "channel", None)
+                or getattr(args, "can_config", None))
+
+
+def cli_run(args, action: Callable[..., list[MotionReport] | MotionReport]) -> int:
+    """Run ``action(cfg, transport=..., on_cycle=..., max_time_s=...)``; print the report(s);
+    exit code 0 if every job succeeded, 1 otherwise."""
+    import sys
+    cfg = _load(args.config)
+    tty = sys.stderr.isatty()
+    last = [-1.0]
+
+    def on_cycle(ctl: MotionController, rec: CycleRecord) -> None:
+        if args.quiet:
+            return
+        every = 0.1 if tty else 0.5
+        if rec.t_s - last[0] < every:
+            return
+        last[0] = rec.t_s
+        job = ctl.job
+        io = ctl.io
+        state = job.report.states[-1] if job.report.states else ctl.phase.value
+        actual = io.scale.from_counts(io.input.actual) if io.input is not None else math.nan
+        line = (f"{job.kind} {job.ax.name}: t {rec.t_s:7.3f} s  {state:<14} "
+                f"actual {actual:10.4f}  target {io.scale.from_counts(io.target):10.4f}")
+        print("\r" + line if tty else line, end="" if tty else "\n", file=sys.stderr,
+              flush=True)
+
+    transport = None
+    if real_bus_requested(args):
+        from . import canbus
+        from .transport import RealtimeTransport
+        transport = RealtimeTransport(canbus.open_bus(args, cfg.bitrate))
+    try:
+        result = action(cfg, transport=transport, on_cycle=on_cycle, max_time_s=args.max_time)
+    finally:
+        if transport is not None:
+            transport.close()
+        if not args.quiet and tty:
+            print(file=sys.stderr)
+    reports = result if isinstance(result, list) else [result]
+    for r in reports:
+        print(r.summary())
+    return 0 if all(r.ok for r in reports) else 1

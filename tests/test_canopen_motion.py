@@ -1,0 +1,313 @@
+"""Axis motion on the CANopen controller (issue 7): GotoY / drive / no homing, moves, jog.
+
+Everything runs through the CAN path: the embedded virtual bus, stepped clock, simulated
+CiA 402 drives with slow-down, home and limit switches at configured positions (counts;
+axis y: 10000 counts/mm, period 2 ms).  Deterministic.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from pathlib import Path
+
+import pytest
+
+from controller import cli
+from controller.canopen import axis_motion as am
+from controller.canopen.config import load_bus_config
+from controller.canopen.testing import bus_yml_text
+from controller.errors import ConfigError
+
+CPM = 10000.0  # counts/mm of axis y
+T = 0.002
+V, A = 200.0, 2000.0
+
+TPDO2 = """    2:
+      enabled: true
+      transmission: 1
+      mapping:
+        - {index: 0x60FD, sub_index: 0}
+"""
+SWITCHES = ", slow_down: [-100000, 100000], home_switch: [-2000, 2000], negative_limit: -400000"
+GOTOY = ("{method: gotoy, search_vel: 50, creep_vel: 10, push_in_counts: 500, back_off: 1.0, "
+         "timeout_s: 10}")
+
+
+def yml_text(*, initial: int = 300000, sim: str = SWITCHES, homing: str = GOTOY,
+             motion: str = f"{{vel: {V}, acc: {A}, jerk: 50000}}", di: bool = True,
+             x_homing: str | None = None) -> str:
+    t = bus_yml_text(("x", "y"))
+    if x_homing is not None:
+        t = t.replace("      x: {node: x, counts_per_mm: 10000, zero: 0, min: -100, max: 1500}",
+                      "      x: {node: x, counts_per_mm: 10000, zero: 0, min: -100, max: 1500,"
+                      f" homing: {x_homing}}}")
+    if di:
+        t = t.replace("        - {index: 0x6064, sub_index: 0}\n",
+                      "        - {index: 0x6064, sub_index: 0}\n" + TPDO2)
+    t = t.replace("      y: {node: y, counts_per_mm: 10000, zero: 0, min: -100, max: 1500}",
+                  "      y: {node: y, counts_per_mm: 10000, zero: 0, min: -100, max: 1500,\n"
+                  f"          motion: {motion}, homing: {homing}}}")
+    return t.replace("  y: {initial_counts: 1000000, max_velocity: 3.0e7}",
+                     f"  y: {{initial_counts: {initial}, max_velocity: 3.0e7{sim}}}")
+
+
+def cfg_of(tmp_path: Path, **kw):
+    p = tmp_path / "bus.yml"
+    p.write_text(yml_text(**kw))
+    return load_bus_config(p)
+
+
+def check_stream(r: am.MotionReport, vel: float = V, acc: float = A) -> None:
+    """The 607Ah count stream never exceeds the velocity (+1 count of rounding) or the
+    acceleration limit (+2 counts) in finite differences."""
+    c = r.targets
+    assert len(c) > 2
+    dv = [b - a for a, b in itertools.pairwise(c)]
+    assert max(abs(d) for d in dv) <= math.ceil(CPM * vel * T)
+    da = [b - a for a, b in itertools.pairwise(dv)]
+    assert max(abs(d) for d in da) <= CPM * acc * T * T + 2
+
+
+# -- GotoY through the CAN path ----------------------------------------------------------------
+@pytest.mark.parametrize("initial, states", [
+    (300000, ["ACCEL", "CONST", "DEACCEL", "SMALL_V", "DOGE", "BACK", "STOP"]),  # no sensor
+    (50000, ["SMALL_V", "DOGE", "BACK", "STOP"]),  # slow-down sensor only
+    (1000, ["DOGE", "BACK", "STOP"]),  # both sensors
+])
+def test_gotoy_start_conditions(tmp_path, initial, states):
+    cfg = cfg_of(tmp_path, initial=initial)
+    (r,) = am.home(cfg, "y")
+    assert r.ok, r.message
+    assert r.result == "FINISHED"
+    assert r.states == states
+    # exact end position: the drive stands on the last setpoint
+    assert r.end_counts == round(r.setpoint_mm * CPM)
+    assert r.home_offset_mm is not None
+    if initial != 1000:  # latched near the home switch edge (0.2 mm) at the creep speed
+        assert abs(r.home_offset_mm - 0.2) < 0.1
+    else:  # both sensors at the start: the start position is latched
+        assert r.home_offset_mm == pytest.approx(0.1)
+    # BACK ends back_off (1 mm) against the homing direction from the DOGE end, which is
+    # beyond the latch by the push-in (0.05 mm) plus the creep stop
+    if initial != 1000:
+        assert 1.0 - 0.2 < r.homed_end_mm < 1.0 - 500 / CPM
+    else:  # from rest: exactly push-in, then back-off
+        assert r.homed_end_mm == pytest.approx(1.0 - 500 / CPM, abs=1e-9)
+    check_stream(r)
+    assert r.inputs and any(i & am.DI_HOME for i in r.inputs)
+
+
+def test_gotoy_timeout(tmp_path):
+    cfg = cfg_of(tmp_path, sim="", homing="{method: gotoy, search_vel: 50, creep_vel: 10, "
+                                           "timeout_s: 0.5}")
+    (r,) = am.home(cfg, "y")
+    assert not r.ok
+    assert r.result == "ERROR_TIMEOUT"
+    assert r.states == ["ACCEL", "CONST", "ABORT", "STOP"]
+    assert r.end_counts == r.targets[-1]  # stopped jerk-limited, at rest
+    check_stream(r)
+
+
+def test_gotoy_limit_switch_abort(tmp_path):
+    # slow-down dog but no home switch: the creep runs into the negative limit switch
+    cfg = cfg_of(tmp_path, initial=50000,
+                 sim=", slow_down: [-100000, 100000], negative_limit: -20000")
+    (r,) = am.home(cfg, "y")
+    assert not r.ok
+    assert r.result == "ERROR_LIMIT_SWITCH"
+    assert "limit" in r.message.lower()
+    assert "ABORT" in r.states
+    assert r.end_mm >= -2.5  # stopped right after the switch (-2 mm)
+
+
+def test_gotoy_needs_60fd_mapping(tmp_path):
+    cfg = cfg_of(tmp_path, di=False)
+    with pytest.raises(am.MotionError, match="60FDh"):
+        am.home(cfg, "y")
+
+
+# -- the drive's homing mode -------------------------------------------------------------------
+def _device(holder):
+    def setup(world):
+        holder.append(world.device("y"))
+    return setup
+
+
+def test_drive_homing_success(tmp_path):
+    cfg = cfg_of(tmp_path, homing="{method: drive, drive_method: 21, switch_vel: 20, "
+                                   "timeout_s: 5, home_offset: 2}")
+    devs = []
+    (r,) = am.home(cfg, "y", setup=_device(devs))
+    assert r.ok, r.message
+    assert r.states == ["SETUP", "HOMING", "ATTAINED", "CSP"]
+    assert r.end_counts == 20000  # 607Ch: the home switch edge reads 2 mm
+    dev = devs[0]
+    assert int(dev.load(0x6061, 0)) == 8  # back in CSP
+    assert int(dev.load(0x6098, 0)) == 21
+    assert int(dev.load(0x6099, 1)) == 200000
+    # the home switch is where it physically was: 2 mm -> edge at 2000 counts physical
+    assert dev.homing_status is None
+
+
+def test_drive_homing_timeout(tmp_path):
+    cfg = cfg_of(tmp_path, homing="{method: drive, drive_method: 21, switch_vel: 20, "
+                                   "timeout_s: 0.5}")
+    devs = []
+    (r,) = am.home(cfg, "y", setup=_device(devs))
+    assert not r.ok
+    assert r.result == "ERROR_TIMEOUT"
+    assert "0.5 s" in r.message
+    assert r.states[-1] == "CSP"
+    assert int(devs[0].load(0x6061, 0)) == 8
+    assert 19.0 < r.end_mm < 21.0  # 0.5 s at 20 mm/s from 30 mm, then stopped
+
+
+def test_drive_homing_error_bit13(tmp_path):
+    # searching negative for the home switch, the negative limit switch comes first
+    cfg = cfg_of(tmp_path, sim=", negative_limit: 250000",
+                 homing="{method: drive, drive_method: 21, switch_vel: 20, timeout_s: 5}")
+    (r,) = am.home(cfg, "y")
+    assert not r.ok
+    assert r.result == "ERROR_HOMING" and "bit 13" in r.message
+
+
+def test_drive_homing_current_position_and_none(tmp_path):
+    cfg = cfg_of(tmp_path, homing="{method: drive, drive_method: 35, timeout_s: 1}")
+    (r,) = am.home(cfg, "y")
+    assert r.ok and r.end_counts == 0
+    cfg = cfg_of(tmp_path, homing="{method: none, home_offset: 3}")
+    (r,) = am.home(cfg, "y")
+    assert r.ok and r.home_offset_mm == 3.0 and r.end_mm == 30.0 and r.cycles == 1
+
+
+def test_drive_homing_limit_switch_method(tmp_path):
+    # method 17: the negative limit switch (at 25 mm) is home; 607Ch = 0
+    cfg = cfg_of(tmp_path, sim=", negative_limit: 250000",
+                 homing="{method: drive, drive_method: 17, switch_vel: 20, timeout_s: 5}")
+    (r,) = am.home(cfg, "y")
+    assert r.ok, r.message
+    assert r.end_counts == 0
+    assert 0.2 < r.time_s < 0.35  # 5 mm at 20 mm/s
+
+
+def test_home_several_axes_in_one_session(tmp_path):
+    cfg = cfg_of(tmp_path, x_homing="{method: drive, drive_method: 35, timeout_s: 1}")
+    reports = am.home(cfg)  # every axis with a homing: section, in order: x, y
+    assert [(r.axis, r.ok) for r in reports] == [("x", True), ("y", True)]
+    assert reports[0].end_counts == 0  # x stays homed while y homes
+    assert reports[1].states[-1] == "STOP"
+    # a failure ends the session: y is not homed after x failed
+    cfg = cfg_of(tmp_path, x_homing="{method: drive, drive_method: 21, switch_vel: 20, "
+                                    "timeout_s: 0.1}")
+    reports = am.home(cfg, ["x", "y"])
+    assert [(r.axis, r.result) for r in reports] == [("x", "ERROR_TIMEOUT")]
+
+
+def test_homing_config_errors(tmp_path):
+    p = tmp_path / "bus.yml"
+    p.write_text(yml_text(homing="{method: magic}"))
+    with pytest.raises(ConfigError, match="method"):
+        load_bus_config(p)
+    p.write_text(yml_text(homing="{method: drive, drive_method: 16}"))
+    with pytest.raises(ConfigError, match="reserved"):
+        load_bus_config(p)
+    p.write_text(yml_text(homing="{method: gotoy, search_vel: 500}"))
+    with pytest.raises(ConfigError, match="search_vel"):
+        load_bus_config(p)
+
+
+# -- moves -------------------------------------------------------------------------------------
+@pytest.mark.parametrize("target", [80.0, 30.5, 12.3456])
+def test_move_exact_end_and_limits(tmp_path, target):
+    cfg = cfg_of(tmp_path)
+    r = am.move(cfg, "y", target)
+    assert r.ok and r.result == "FINISHED"
+    assert r.setpoint_mm == target
+    assert r.end_counts == round(target * CPM)
+    assert r.targets[-1] == round(target * CPM)
+    check_stream(r)
+
+
+def test_move_brake_timing(tmp_path):
+    cfg = cfg_of(tmp_path, motion=f"{{vel: {V}, acc: {A}, jerk: 50000, brake_release_s: 0.02, "
+                                  "brake_engage_s: 0.03, stop_time_s: 0.01}")
+    r = am.move(cfg, "y", 40.0)
+    assert r.ok
+    assert r.states == ["BRAKE_RELEASE", "ACCEL", "DECEL", "BRAKE_ENGAGE", "WAIT", "READY"]
+    assert r.targets[:10] == [300000] * 10  # no motion before the release time (10 cycles)
+    assert r.targets[10] == 300000 or r.targets[11] > 300000
+    tail = r.targets[-21:]  # engage 15 + wait 5 cycles at rest on the target, then READY
+    assert tail == [400000] * 21
+    check_stream(r)
+
+
+def test_move_retarget_midway(tmp_path):
+    cfg = cfg_of(tmp_path)
+    seen = []
+
+    def on_cycle(ctl, rec):
+        job = ctl.job
+        if job.started and not seen and len(job.report.targets) == 60:
+            seen.append(ctl.io.target)
+            job.set_target(45.0)  # while moving towards 100 mm
+
+    r = am.move(cfg, "y", 100.0, on_cycle=on_cycle)
+    assert seen and 300000 < seen[0] < 1000000
+    assert r.ok and r.setpoint_mm == 45.0 and r.end_counts == 450000
+    assert max(r.targets) <= 1000000
+    check_stream(r)
+
+
+def test_move_outside_axis_limits(tmp_path):
+    cfg = cfg_of(tmp_path)
+    with pytest.raises(am.MotionError, match="outside the axis limits"):
+        am.move(cfg, "y", 2000.0)
+    with pytest.raises(am.MotionError, match="no axis"):
+        am.move(cfg, "q", 1.0)
+
+
+# -- jog ---------------------------------------------------------------------------------------
+def test_jog_start_stop(tmp_path):
+    cfg = cfg_of(tmp_path)
+    r = am.jog(cfg, "y", -20.0, 0.5)
+    assert r.ok and r.states == ["ACCEL", "CONST", "DECEL", "READY"]
+    # symmetric jerk-limited start and stop: 20 mm/s for 0.5 s
+    assert r.end_mm == pytest.approx(20.0, abs=1e-3)
+    assert r.end_counts == r.targets[-1]
+    check_stream(r, vel=20.0)
+
+
+def test_jog_limit_switch_abort(tmp_path):
+    cfg = cfg_of(tmp_path)
+    r = am.jog(cfg, "y", -200.0, 5.0)
+    assert not r.ok and r.result == "ERROR_LIMIT_SWITCH"
+    assert "negative limit switch" in r.message
+    assert -41.0 < r.end_mm < -40.0
+
+
+def test_jog_stops_before_axis_min(tmp_path):
+    cfg = cfg_of(tmp_path, sim="")
+    r = am.jog(cfg, "y", -200.0, 5.0)
+    assert r.ok and "axis limit" in r.message
+    assert -100.0 <= min(t / CPM for t in r.targets)
+    check_stream(r)
+
+
+# -- command line ------------------------------------------------------------------------------
+def test_cli_commands(tmp_path, capsys):
+    p = tmp_path / "bus.yml"
+    p.write_text(yml_text())
+    assert cli.main(["move", str(p), "--axis", "y", "--to", "35", "-q"]) == 0
+    out = capsys.readouterr().out
+    assert "move y: OK (FINISHED)" in out and "350000 counts" in out
+    assert cli.main(["jog", str(p), "--axis", "y", "--speed", "10", "--time", "0.1", "-q"]) == 0
+    assert cli.main(["home", str(p), "-q"]) == 0
+    out = capsys.readouterr().out
+    assert "home y: OK" in out and "DOGE" in out
+    p.write_text(yml_text(sim=""))
+    p2 = tmp_path / "b2.yml"
+    p2.write_text(yml_text(sim="", homing="{method: gotoy, search_vel: 50, creep_vel: 10, "
+                                           "timeout_s: 0.2}"))
+    assert cli.main(["home", str(p2), "--axis", "y", "-q"]) == 1
+    assert "ERROR_TIMEOUT" in capsys.readouterr().out
