@@ -20,6 +20,7 @@ from ..errors import ConfigError
 from .config import load_bus_config
 from .cycle import Controller
 from .demo import PhotoEye, PickPlace
+from .plc_node import PlcNode
 from .report import plot_run, status_line, summary_table, write_telemetry
 from .world import SimWorld
 
@@ -40,6 +41,9 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
     p.add_argument("--duration", type=float, help="stop after this many seconds of tracking")
     p.add_argument("--no-plot", action="store_true", help="do not write demo.png")
     p.add_argument("-q", "--quiet", action="store_true", help="no live status line")
+    p.add_argument("--plc-node", action="store_true",
+                   help="the controller is also a CANopen node for a PLC "
+                        "(eds/cantrack-controller.eds: SDO server, TPDO1-3, RPDO1)")
     return p
 
 
@@ -76,6 +80,7 @@ def main(argv: list[str] | None = None, prog: str = "cantrack demo") -> int:
     wall0 = time.perf_counter()
     with SimWorld(cfg, realtime=args.realtime, bus_log=out / "bus.log") as world:
         ctl = Controller(cfg, world.transport, app, on_cycle=on_cycle)
+        plc = PlcNode(ctl, app) if args.plc_node else None
         ctl.boot()
         ctl.start()
         encoder = world.device(enc_name)
@@ -92,6 +97,10 @@ def main(argv: list[str] | None = None, prog: str = "cantrack demo") -> int:
     reactions = [e for e in ctl.events if e.reaction]
     for e in reactions:
         print(f"event: {e}")
+    if plc is not None:
+        print(f"plc node: id {plc.node_id}, SDO server 0x{0x600 + plc.node_id:03X}/"
+              f"0x{0x580 + plc.node_id:03X}, TPDOs sent "
+              + ", ".join(f"0x{p.cob_id:03X} x{p.sent}" for p in plc.tpdos))
     print(f"files: {out / 'bus.log'}, {out / 'telemetry.jsonl'}"
           + ("" if args.no_plot else f", {out / 'demo.png'}"))
     return 0

@@ -109,6 +109,21 @@ class PhotoEye:
                 hi = mid
         return hi
 
+    @property
+    def detected(self) -> int:
+        """Items whose edge has been reported so far (PLC triggers included)."""
+        return self._next
+
+    def trigger(self, t_edge_ns: int, lateral: float = 0.0, angle: float = 0.0) -> Item:
+        """An edge reported from outside (the PLC's trigger input, 2004h of the controller
+        node): a new item at the photo-eye at ``t_edge_ns``, on the belt's centre line."""
+        item = Item(len(self.items), int(t_edge_ns), lateral, angle)
+        i = self._next
+        while i < len(self.items) and self.items[i].t_edge_ns <= item.t_edge_ns:
+            i += 1
+        self.items.insert(i, item)
+        return item
+
     def edges_until(self, t_ns: int) -> list[Item]:
         out = []
         while self._next < len(self.items) and self.items[self._next].t_edge_ns <= t_ns:
