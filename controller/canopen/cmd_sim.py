@@ -6,18 +6,27 @@ another process (cantrack's or anybody's) can be tested against them; python-can
 Faults can be scheduled: ``--inject T:NODE:ACTION[:ARG]`` with ACTION one of
 ``fault[:code]``, ``emcy[:code]``, ``heartbeat-stop``, ``silence``, ``mute-pdos``,
 ``noise:counts`` (encoder), ``disturb:counts`` (drive), ``power-off``.
+
+``--ready-file PATH``: written (JSON: pid, devices, node-IDs) once every simulated device has
+booted (sent its boot-up message), for a test harness that starts the controller next.
+SIGTERM (and SIGINT) stop the devices cleanly with exit code 0.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
+import os
+import signal
 import sys
 import time
+from pathlib import Path
 
 from ..errors import ConfigError
 from . import canbus
 from .clock import RealtimeClock
 from .config import load_bus_config
+from .devices.base import NMT_INITIALISING
 from .devices.drive import SimDrive
 from .devices.encoder import SimEncoder
 from .devices.rack import DeviceRack
@@ -69,6 +78,16 @@ def apply_injection(rack: DeviceRack, node: str, action: str, arg: str | None) -
         raise ConfigError(f"action {action!r} does not apply to {node!r} ({d.kind})")
 
 
+def _set_sigterm(handler):
+    """Install a SIGTERM handler (main thread only; elsewhere a no-op returning None)."""
+    if handler is None:
+        return None
+    try:
+        return signal.signal(signal.SIGTERM, handler)
+    except ValueError:  # not the main thread (in-process tests)
+        return None
+
+
 def build_parser(prog: str) -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog=prog, description=__doc__.split("\n\n")[0])
     p.add_argument("config", help="bus.yml (slaves and the .simulation section)")
@@ -77,8 +96,18 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
     p.add_argument("--duration", type=float, help="stop after this many seconds")
     p.add_argument("--inject", action="append", default=[], metavar="T:NODE:ACTION[:ARG]",
                    help="schedule a fault (repeatable)")
+    p.add_argument("--ready-file", metavar="PATH",
+                   help="write this file (JSON) once every simulated device has booted")
     p.add_argument("-q", "--quiet", action="store_true", help="no status line")
     return p
+
+
+def write_ready_file(path: str, rack: DeviceRack) -> None:
+    """Atomically write the readiness file (pid, device names, node-IDs)."""
+    info = {"pid": os.getpid(), "devices": {n: d.node_id for n, d in rack.devices.items()}}
+    tmp = Path(f"{path}.tmp{os.getpid()}")
+    tmp.write_text(json.dumps(info))
+    os.replace(tmp, path)
 
 
 def describe(rack: DeviceRack) -> str:
@@ -110,8 +139,19 @@ def main(argv: list[str] | None = None, prog: str = "cantrack sim-devices") -> i
     if not args.quiet:
         print(f"simulating {', '.join(rack.devices)} on {bus.channel_info}", file=sys.stderr)
     t_end = None if args.duration is None else args.duration
+    stopping = [False]
+
+    def on_term(signum, frame):  # SIGTERM: leave the loop, clean shutdown, exit 0
+        stopping[0] = True
+
+    old_term = _set_sigterm(on_term)
+    ready = args.ready_file is None
     try:
-        while t_end is None or clock.now_ns() * 1e-9 < t_end:
+        while not stopping[0] and (t_end is None or clock.now_ns() * 1e-9 < t_end):
+            if not ready and all(d.nmt_state != NMT_INITIALISING
+                                 for d in rack.devices.values()):
+                write_ready_file(args.ready_file, rack)
+                ready = True
             now = clock.now_ns() * 1e-9
             while injections and injections[0][0] <= now:
                 _, node, action, arg = injections.pop(0)
@@ -123,6 +163,7 @@ def main(argv: list[str] | None = None, prog: str = "cantrack sim-devices") -> i
     except KeyboardInterrupt:
         pass
     finally:
+        _set_sigterm(old_term)
         thread.stop()
         bus.shutdown()
         if not args.quiet:

@@ -1,0 +1,418 @@
+"""The controller on a real SocketCAN vcan0: ``cantrack run`` against ``cantrack sim-devices``.
+
+One command (one VM boot for the whole module; natively where the kernel has vcan) runs this
+file as a script (:func:`orchestrate`), with ``examples/bus/vcan.yml`` (encoder node 10,
+drives x 11 and y 12, SYNC 100 ms, counter 1..10, heartbeats 200 ms x 4):
+
+1. ``candump -L vcan0`` records the bus;
+2. two device processes: ``sim-devices --only encoder x`` and ``sim-devices --only y``, each
+   with ``--ready-file``;
+3. once both are ready, ``cantrack run --duration 10 --engage-at 1 --disengage-at 3
+   --report run.json``: boot, enable, track the belt, de-sync;
+4. at the 70th SYNC the orchestrator kills the y process (SIGKILL): the controller must detect
+   the heartbeat time-out and quick-stop the other drive (controlword 0002h) - on the bus and
+   in its report, and exit with code 3;
+5. the encoder + x process gets SIGTERM and must exit 0.
+
+On the host the capture is decoded by tshark's CANopen dissector (independent of our code).
+Timing inside the VM is emulated: the tests check correctness, not speed.
+
+Three host-side tests (no vcan) check the readiness file and SIGTERM of ``sim-devices``, and
+SIGTERM of ``run`` during the boot and while tracking, on python-can's virtual bus.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+CONFIG = ROOT / "examples" / "bus" / "vcan.yml"
+SYNC_PERIOD_S = 0.1
+SYNC_OVERFLOW = 10
+ENCODER, X, Y = 10, 11, 12
+KILL_AT_SYNC = 70
+DURATION_S = 10.0
+EXIT_REACTION = 3
+CANTRACK = [sys.executable, "-m", "controller.cli"]
+
+
+# ---------------------------------------------------------------------------------------------
+# the orchestrator (runs inside the VM / on the native vcan0)
+
+def _wait_file(path: Path, procs, timeout_s: float) -> None:
+    t_end = time.monotonic() + timeout_s
+    while not path.is_file():
+        for p in procs:
+            if p.poll() is not None:
+                raise RuntimeError(f"{p.args} exited with {p.returncode} before {path.name}")
+        if time.monotonic() > t_end:
+            raise RuntimeError(f"no {path.name} within {timeout_s} s")
+        time.sleep(0.05)
+
+
+def orchestrate(out: Path, channel: str) -> int:
+    import can
+
+    from controller.testing.candump import CandumpCapture
+
+    out.mkdir(parents=True, exist_ok=True)
+    t0 = time.monotonic()
+    marks: dict[str, float] = {}
+
+    def mark(name: str) -> None:
+        marks[name] = round(time.monotonic() - t0, 3)
+
+    bus_args = ["-i", "socketcan", "-c", channel]
+    result: dict = {"ok": False}
+    cap = CandumpCapture(channel, out / "bus.log").start()
+    mark("candump")
+    logs = {n: open(out / f"{n}.out", "wb") for n in ("sim_ex", "sim_y", "run")}  # noqa: SIM115
+    sim_ex = subprocess.Popen(CANTRACK + ["sim-devices", str(CONFIG), *bus_args, "-q",
+                                          "--only", "encoder", "x",
+                                          "--ready-file", str(out / "ready_ex.json")],
+                              stdout=logs["sim_ex"], stderr=subprocess.STDOUT)
+    sim_y = subprocess.Popen(CANTRACK + ["sim-devices", str(CONFIG), *bus_args, "-q",
+                                         "--only", "y", "--ready-file", str(out / "ready_y.json")],
+                             stdout=logs["sim_y"], stderr=subprocess.STDOUT)
+    run = None
+    watch = can.Bus(interface="socketcan", channel=channel, receive_own_messages=False)
+    try:
+        _wait_file(out / "ready_ex.json", [sim_ex, sim_y], 60)
+        _wait_file(out / "ready_y.json", [sim_ex, sim_y], 60)
+        mark("devices_ready")
+        run = subprocess.Popen(CANTRACK + ["run", str(CONFIG), *bus_args, "-q",
+                                           "--duration", str(DURATION_S), "--engage-at", "1",
+                                           "--disengage-at", "3",
+                                           "--report", str(out / "run.json")],
+                               stdout=logs["run"], stderr=subprocess.STDOUT)
+        syncs = 0
+        t_end = time.monotonic() + 120
+        while syncs < KILL_AT_SYNC:
+            if run.poll() is not None:
+                raise RuntimeError(f"cantrack run exited with {run.returncode} after "
+                                   f"{syncs} SYNC")
+            if time.monotonic() > t_end:
+                raise RuntimeError(f"only {syncs} SYNC within 120 s")
+            msg = watch.recv(0.5)
+            if msg is not None and msg.arbitration_id == 0x80:
+                syncs += 1
+                if syncs == 1:
+                    mark("first_sync")
+        sim_y.kill()
+        sim_y.wait()
+        mark("y_killed")
+        result["sim_y_returncode"] = sim_y.returncode
+        result["run_returncode"] = run.wait(timeout=120)
+        mark("run_done")
+        sim_ex.send_signal(signal.SIGTERM)
+        result["sim_ex_returncode"] = sim_ex.wait(timeout=30)
+        mark("sim_done")
+        result["ok"] = True
+    except Exception as exc:  # noqa: BLE001 -- in result.json; exit code 1
+        result["error"] = f"{type(exc).__name__}: {exc}"
+    finally:
+        for p in (run, sim_ex, sim_y):
+            if p is not None and p.poll() is None:
+                p.kill()
+                p.wait()
+        watch.shutdown()
+        time.sleep(0.2)
+        info = cap.stop()
+        for f in logs.values():
+            f.close()
+        result.update({"capture_frames": info.frames, "capture_dropped": info.dropped,
+                       "candump_returncode": info.returncode, "marks_s": marks})
+        (out / "result.json").write_text(json.dumps(result, indent=1))
+    return 0 if result["ok"] else 1
+
+
+# ---------------------------------------------------------------------------------------------
+# the tests
+
+class Run:
+    def __init__(self, out: Path, frames):
+        self.out = out
+        self.result = json.loads((out / "result.json").read_text())
+        self.report = json.loads((out / "run.json").read_text())
+        self.frames = frames
+
+
+def _tail(path: Path) -> str:
+    return path.read_text(errors="replace")[-2500:] if path.is_file() else "(none)"
+
+
+@pytest.fixture(scope="module")
+def session(vcan_runner, tshark_path, tmp_path_factory) -> Run:
+    from controller.testing.capture import classify_capture
+
+    scratch = tmp_path_factory.mktemp("vcan-controller")
+    out = scratch / "ctl"
+    r = vcan_runner.run([sys.executable, str(Path(__file__).resolve()), "--out", str(out)],
+                        timeout_s=200, scratch_dir=scratch, cwd=ROOT)
+    res = out / "result.json"
+    assert r.returncode == 0 and not r.timed_out and (out / "run.json").is_file(), (
+        f"orchestrator failed ({r.mode}, rc {r.returncode}, timed out {r.timed_out})\n"
+        f"--- result.json ---\n{_tail(res)}\n--- stderr ---\n{r.stderr[-3000:]}\n"
+        f"--- run ---\n{_tail(out / 'run.out')}\n--- sim_ex ---\n{_tail(out / 'sim_ex.out')}\n"
+        f"--- sim_y ---\n{_tail(out / 'sim_y.out')}")
+    return Run(out, classify_capture(out / "bus.log", tshark=tshark_path))
+
+
+pytestmark_vcan = pytest.mark.vcan
+
+
+def _of(frames, kind):
+    return [f for f in frames if f.kind is kind]
+
+
+def _running_window(s: Run):
+    """(first, last) SYNC index of the RUNNING phase before the kill, from the report."""
+    ch = s.report["state_changes"]
+    start = next(c["cycle"] for c in ch if c["phase"] == "running")
+    lost = next(e["cycle"] for e in s.report["events"] if e["kind"] == "heartbeat_lost")
+    return start, lost
+
+
+@pytestmark_vcan
+def test_processes_and_exit_codes(session):
+    res = session.result
+    assert res["ok"], res
+    assert res["run_returncode"] == EXIT_REACTION, _tail(session.out / "run.out")
+    assert res["sim_ex_returncode"] == 0, _tail(session.out / "sim_ex.out")
+    assert res["sim_y_returncode"] == -signal.SIGKILL
+    assert res["candump_returncode"] == 0 and res["capture_dropped"] == 0
+    assert len(session.frames) == res["capture_frames"] > 0
+    assert session.report["exit_code"] == EXIT_REACTION
+
+
+@pytestmark_vcan
+def test_every_frame_classified_none_malformed(session):
+    from controller.testing.capture import Kind, kinds_count, problems
+
+    bad = problems(session.frames)
+    assert not bad, f"{len(bad)} of {len(session.frames)} frames:\n" + "\n".join(bad[:30])
+    assert set(kinds_count(session.frames)) >= {Kind.NMT, Kind.SYNC, Kind.PDO, Kind.SDO,
+                                                Kind.HEARTBEAT}
+
+
+@pytestmark_vcan
+def test_boot_on_the_bus(session):
+    """NMT reset node of each slave, boot-ups, identity SDOs, NMT start; the controller's own
+    boot-up and heartbeat from the boot on."""
+    from controller.testing.capture import Kind
+
+    fr = session.frames
+    nmt = [(f.nmt_command, f.nmt_target) for f in _of(fr, Kind.NMT)]
+    assert nmt[:3] == [(0x81, ENCODER), (0x81, X), (0x81, Y)], nmt
+    assert set(nmt[3:6]) == {(0x01, ENCODER), (0x01, X), (0x01, Y)}, nmt
+    hb = _of(fr, Kind.HEARTBEAT)
+    master = [f for f in hb if f.can_id == 0x701]
+    assert master and master[0].nmt_state == 0, "the controller's boot-up"
+    first_sync = _of(fr, Kind.SYNC)[0].time_s
+    before = [f for f in master if f.time_s < first_sync and f.nmt_state == 5]
+    assert before, "the controller's heartbeat runs during the boot"
+    for node in (ENCODER, X, Y):
+        boot_ups = [f for f in hb if f.node_id == node and f.nmt_state == 0]
+        assert boot_ups, node
+        ident = {(f.sdo_index, f.sdo_subindex) for f in _of(fr, Kind.SDO)
+                 if f.node_id == node and f.direction == "rx"}
+        assert {(0x1000, 0), (0x1018, 1), (0x1018, 2)} <= ident, (node, ident)
+    # 60C2h = the SYNC period (100 x 10^-3 s) written to both drives
+    for node in (X, Y):
+        w = {(f.sdo_index, f.sdo_subindex): f.data for f in _of(fr, Kind.SDO)
+             if f.node_id == node and f.direction == "rx" and f.data[0] & 0xE0 == 0x20}
+        assert w[(0x60C2, 1)][4] == 100 and w[(0x60C2, 2)][4] == 0xFD, w
+
+
+@pytestmark_vcan
+def test_sync_period_and_counter(session):
+    from controller.testing.capture import sync_period_stats
+
+    stats = sync_period_stats(session.frames, overflow=SYNC_OVERFLOW)
+    rep = session.report
+    assert rep["sync_period_us"] == SYNC_PERIOD_S * 1e6 and rep["sync_overflow"] == SYNC_OVERFLOW
+    assert stats.counters[0] == 1 and not stats.counter_gaps, stats.describe()
+    assert stats.count == rep["cycles"], stats.describe()
+    assert abs(stats.period_median_s - SYNC_PERIOD_S) <= 0.1 * SYNC_PERIOD_S, stats.describe()
+    assert abs(stats.period_mean_s - SYNC_PERIOD_S) <= 0.25 * SYNC_PERIOD_S, stats.describe()
+
+
+@pytestmark_vcan
+def test_pdo_order_per_sync(session):
+    """Before the kill: after each SYNC the three TPDOs (encoder before x: one process), then
+    the controller's RPDOs to x and y, in the configured order."""
+    from controller.testing.capture import pdo_order_per_sync
+
+    cyclic = {0x18A, 0x18B, 0x18C, 0x20B, 0x20C}
+    cycles = [tuple(c for c in cyc if c in cyclic)  # (TPDO3 0x38B/0x38C: event-driven)
+              for cyc in pdo_order_per_sync(session.frames)]
+    _running_window(session)  # (the report has the cycle start and the loss)
+    # from the cycle start until y is killed (its TPDO missing); the last one may be cut
+    end = next(k for k in range(1, len(cycles)) if 0x18C not in cycles[k])
+    window = cycles[1:end - 1]
+    assert len(window) >= KILL_AT_SYNC - 5, (len(window), cycles[:5])
+    exact = sum(1 for c in window if sorted(c) == sorted(cyclic)
+                and c.index(0x18A) < c.index(0x18B) and c[-2:] == (0x20B, 0x20C))
+    assert exact >= 0.9 * len(window), f"{exact} of {len(window)}: {window}"
+    sent = session.report["sent_pdos_per_sync"]
+    assert all(c == [0x20B, 0x20C] for c in sent), session.report["sent_pdo_sequences"]
+
+
+@pytestmark_vcan
+def test_enable_track_desync(session):
+    rep = session.report
+    states = [(c["phase"], c["state"]) for c in rep["state_changes"]]
+    # enable, then (engage) SYNCING -> SYNCED, (disengage) DESYNCING -> OFF; after the kill
+    # the quick stop (phase stopping)
+    running = [st for ph, st in states if ph == "running"]
+    assert states[0] == ("enabling", "OFF"), states
+    assert running == ["OFF", "SYNCING", "SYNCED", "DESYNCING", "OFF"], states
+    assert states[-1][0] == "stopping", states
+    i_run = states.index(("running", "OFF"))
+    i_sync = states.index(("running", "SYNCING"))
+    changes = rep["state_changes"]
+    assert changes[i_sync + 1]["cycle"] - changes[i_sync]["cycle"] >= 3, "SYNCING lasted"
+    assert changes[i_sync + 3]["cycle"] - changes[i_sync + 2]["cycle"] >= 3, "DESYNCING lasted"
+    # --disengage-at 3: 3 s after the tracking start
+    assert changes[i_sync + 2]["cycle"] - changes[i_run]["cycle"] == round(3 / SYNC_PERIOD_S)
+    sync_cycle = rep["state_changes"][i_sync]["cycle"]
+    start = rep["state_changes"][i_run]["cycle"]
+    assert sync_cycle - start >= round(1 / SYNC_PERIOD_S), "engaged at --engage-at 1"
+    # the drives follow the controller: x (the belt direction) moved while tracking
+    from controller.testing.capture import Kind
+    pos = [int.from_bytes(f.data[2:6], "little", signed=True) for f in _of(session.frames,
+                                                                          Kind.PDO)
+           if f.can_id == 0x18B]
+    assert max(pos) - min(pos) > 50_000, "x moved more than 5 mm with the belt"
+
+
+@pytestmark_vcan
+def test_heartbeat_timeout_reaction_on_bus_and_report(session):
+    from controller.testing.capture import Kind
+
+    fr = session.frames
+    rep = session.report
+    lost = [e for e in rep["events"] if e["kind"] == "heartbeat_lost"]
+    assert [e["node"] for e in lost] == [Y], rep["events"]
+    assert lost[0]["reaction"] == "quick stop of all drives"
+    assert rep["heartbeat_timeouts_ms"]["node 12 (y)"] == 800
+    # the gap in y's heartbeats, then the quick stop controlword 0002h to x on the bus
+    hb_y = [f.time_s for f in _of(fr, Kind.HEARTBEAT) if f.node_id == Y]
+    last_y = hb_y[-1]
+    rpdo_x = [f for f in _of(fr, Kind.PDO) if f.can_id == 0x20B]
+    qs = [f for f in rpdo_x if int.from_bytes(f.data[:2], "little") == 0x0002]
+    assert qs, "quick stop controlword to x"
+    assert qs[0].time_s > last_y + 0.5, (qs[0].time_s, last_y)
+    before = [f for f in rpdo_x if f.time_s < last_y]
+    assert all(int.from_bytes(f.data[:2], "little") != 0x0002 for f in before)
+    # x reacts: it leaves OPERATION ENABLED (quick stop active / switch on disabled)
+    sw = [int.from_bytes(f.data[:2], "little") for f in _of(fr, Kind.PDO)
+          if f.can_id == 0x18B and f.time_s > qs[0].time_s]
+    assert sw and (sw[-1] & 0x6F) != 0x27, [hex(s) for s in sw[-5:]]
+    assert rep["final_phase"] in ("stopping", "stopped")
+
+
+# ---------------------------------------------------------------------------------------------
+# host side: readiness file and SIGTERM (python-can virtual bus, no vcan needed)
+
+def _spawn(args, tmp_path, name):
+    log = open(tmp_path / f"{name}.out", "wb")  # noqa: SIM115
+    return subprocess.Popen(CANTRACK + args, stdout=log, stderr=subprocess.STDOUT, cwd=ROOT)
+
+
+def test_sim_devices_ready_file_and_sigterm(tmp_path):
+    ready = tmp_path / "ready.json"
+    p = _spawn(["sim-devices", str(CONFIG), "-i", "virtual", "-c", "t1", "-q",
+                "--ready-file", str(ready)], tmp_path, "sim")
+    try:
+        _wait_file(ready, [p], 30)
+        info = json.loads(ready.read_text())
+        assert info["pid"] == p.pid and info["devices"] == {"encoder": ENCODER, "x": X, "y": Y}
+        p.send_signal(signal.SIGTERM)
+        assert p.wait(timeout=10) == 0, (tmp_path / "sim.out").read_text()
+    finally:
+        if p.poll() is None:
+            p.kill()
+
+
+def test_run_sigterm_during_boot_is_clean(tmp_path):
+    """No devices: the controller waits for boot-ups (10 s); SIGTERM ends it at once, exit 0,
+    with a report."""
+    report = tmp_path / "run.json"
+    p = _spawn(["run", str(CONFIG), "-i", "virtual", "-c", "t2", "-q", "--report",
+                str(report)], tmp_path, "run")
+    try:
+        time.sleep(2.0)
+        assert p.poll() is None, (tmp_path / "run.out").read_text()
+        p.send_signal(signal.SIGTERM)
+        assert p.wait(timeout=10) == 0, (tmp_path / "run.out").read_text()
+        rep = json.loads(report.read_text())
+        assert rep["end"] == "sigterm" and rep["exit_code"] == 0 and rep["cycles"] == 0
+        assert rep["sync_period_us"] == 100000 and rep["sync_overflow"] == 10
+    finally:
+        if p.poll() is None:
+            p.kill()
+
+
+_IN_ONE_PROCESS = """
+import sys
+from controller.canopen import cmd_run
+from controller.canopen.clock import RealtimeClock
+from controller.canopen.config import load_bus_config
+from controller.canopen.devices.rack import DeviceRack
+from controller.canopen.transport import DeviceThread, virtual_bus
+cfg = load_bus_config(sys.argv[1])
+clock = RealtimeClock()
+rack = DeviceRack.from_config(cfg, virtual_bus("t3"), clock)
+th = DeviceThread(rack, clock).start()
+rc = cmd_run.main([sys.argv[1], "-i", "virtual", "-c", "t3", "-q", "--engage-at", "0.5",
+                   "--report", sys.argv[2]])
+th.stop()
+sys.exit(rc)
+"""
+
+
+def test_run_sigterm_while_tracking_disables_and_reports(tmp_path):
+    """SIGTERM while tracking (devices in a thread of the same process, virtual bus): the
+    drives are disabled (phase stopped, no reaction), the report written, exit code 0."""
+    report = tmp_path / "run.json"
+    log = open(tmp_path / "run.out", "wb")  # noqa: SIM115
+    p = subprocess.Popen([sys.executable, "-c", _IN_ONE_PROCESS, str(CONFIG), str(report)],
+                         stdout=log, stderr=subprocess.STDOUT, cwd=ROOT)
+    try:
+        time.sleep(4.0)
+        assert p.poll() is None, (tmp_path / "run.out").read_text()
+        p.send_signal(signal.SIGTERM)
+        assert p.wait(timeout=10) == 0, (tmp_path / "run.out").read_text()
+        rep = json.loads(report.read_text())
+        assert rep["end"] == "sigterm" and rep["exit_code"] == 0 and rep["reactions"] == 0
+        assert rep["final_phase"] == "stopped" and rep["cycles"] >= 20
+        assert ("running", "SYNCING") in [(c["phase"], c["state"])
+                                          for c in rep["state_changes"]]
+        # the heartbeat supervision of the boot did not fire, the cycle's RPDOs as configured
+        assert not [e for e in rep["events"] if e["kind"] == "heartbeat_lost"]
+        assert rep["sent_pdo_sequences"] == [{"cob_ids": [0x20B, 0x20C],
+                                              "cycles": rep["cycles"]}]
+    finally:
+        log.close()
+        if p.poll() is None:
+            p.kill()
+
+
+if __name__ == "__main__":
+    import argparse
+
+    ap = argparse.ArgumentParser(description="the vcan controller tier's orchestrator")
+    ap.add_argument("--out", type=Path, required=True)
+    ap.add_argument("--channel", default=os.environ.get("CANTRACK_CAN_CHANNEL", "vcan0"))
+    a = ap.parse_args()
+    sys.path.insert(0, str(ROOT))
+    sys.exit(orchestrate(a.out, a.channel))
