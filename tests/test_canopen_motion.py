@@ -69,6 +69,15 @@ def check_stream(r: am.MotionReport, vel: float = V, acc: float = A) -> None:
     assert max(abs(d) for d in da) <= CPM * acc * T * T + 2
 
 
+def gotoy_part(r: am.MotionReport) -> am.MotionReport:
+    """The report with the 607Ah stream of the GotoY motion only (without the cycles after
+    the drive's position was set: those are in the new coordinate)."""
+    n = len(r.targets)
+    while n > 0 and r.targets[n - 1] == r.set_after_counts:
+        n -= 1
+    return am.MotionReport(r.kind, r.axis, targets=r.targets[:n])
+
+
 # -- GotoY through the CAN path ----------------------------------------------------------------
 @pytest.mark.parametrize("initial, states", [
     (300000, ["ACCEL", "CONST", "DEACCEL", "SMALL_V", "DOGE", "BACK", "STOP"]),  # no sensor
@@ -80,21 +89,25 @@ def test_gotoy_start_conditions(tmp_path, initial, states):
     (r,) = am.home(cfg, "y")
     assert r.ok, r.message
     assert r.result == "FINISHED"
-    assert r.states == states
+    # GotoY, then the drive's position is set (method 37) and the drive is back in CSP
+    assert r.states == states + ["SET_POSITION", "CSP"]
     # exact end position: the drive stands on the last setpoint
     assert r.end_counts == round(r.setpoint_mm * CPM)
-    assert r.home_offset_mm is not None
+    # the position now is the homed coordinate (home = home_offset = 0)
+    assert r.home_offset_mm == 0.0
+    assert r.latched_mm is not None
     if initial != 1000:  # latched near the home switch edge (0.2 mm) at the creep speed
-        assert abs(r.home_offset_mm - 0.2) < 0.1
+        assert abs(r.latched_mm - 0.2) < 0.1
     else:  # both sensors at the start: the start position is latched
-        assert r.home_offset_mm == pytest.approx(0.1)
+        assert r.latched_mm == pytest.approx(0.1)
+    assert r.set_after_counts == r.end_counts == round((r.set_before_mm - r.latched_mm) * CPM)
     # BACK ends back_off (1 mm) against the homing direction from the DOGE end, which is
     # beyond the latch by the push-in (0.05 mm) plus the creep stop
     if initial != 1000:
         assert 1.0 - 0.2 < r.homed_end_mm < 1.0 - 500 / CPM
     else:  # from rest: exactly push-in, then back-off
         assert r.homed_end_mm == pytest.approx(1.0 - 500 / CPM, abs=1e-9)
-    check_stream(r)
+    check_stream(gotoy_part(r))
     assert r.inputs and any(i & am.DI_HOME for i in r.inputs)
 
 
@@ -196,7 +209,7 @@ def test_home_several_axes_in_one_session(tmp_path):
     reports = am.home(cfg)  # every axis with a homing: section, in order: x, y
     assert [(r.axis, r.ok) for r in reports] == [("x", True), ("y", True)]
     assert reports[0].end_counts == 0  # x stays homed while y homes
-    assert reports[1].states[-1] == "STOP"
+    assert reports[1].states[-1] == "CSP"  # GotoY, then its position set
     # a failure ends the session: y is not homed after x failed
     cfg = cfg_of(tmp_path, x_homing="{method: drive, drive_method: 21, switch_vel: 20, "
                                     "timeout_s: 0.1}")
@@ -311,3 +324,70 @@ def test_cli_commands(tmp_path, capsys):
                                            "timeout_s: 0.2}"))
     assert cli.main(["home", str(p2), "--axis", "y", "-q"]) == 1
     assert "ERROR_TIMEOUT" in capsys.readouterr().out
+
+
+# -- the home offset set at the end of GotoY ---------------------------------------------------
+def _physical(dev) -> int:
+    """Where the simulated drive physically stands [counts] (its switches' coordinate)."""
+    return round(dev.x - dev._home_shift)
+
+
+@pytest.mark.parametrize("initial, offset", [(300000, 0.0), (50000, 2.5), (1000, -1.25)])
+def test_gotoy_sets_the_drive_position(tmp_path, initial, offset):
+    cfg = cfg_of(tmp_path, initial=initial,
+                 homing=GOTOY.replace("}", f", home_offset: {offset}}}"))
+    devs = []
+    (r,) = am.home(cfg, "y", setup=_device(devs))
+    assert r.ok, r.message
+    dev = devs[0]
+    # the latched home reads the home offset: 6064h = offset + distance from home [counts]
+    distance = r.set_before_mm - r.latched_mm
+    assert int(dev.load(0x6064, 0)) == round((offset + distance) * CPM) == r.set_after_counts
+    assert r.end_counts == r.set_after_counts
+    assert r.set_after_mm == pytest.approx(offset + distance, abs=1 / CPM)
+    assert int(dev.load(0x6061, 0)) == 8 and int(dev.load(0x607A, 0)) == r.set_after_counts
+    assert int(dev.load(0x6098, 0)) == 37
+    assert int(dev.load(0x607C, 0)) == r.set_after_counts
+    # the drive did not move for the set: it still stands where 6064h read before
+    assert _physical(dev) == r.set_before_counts
+    assert r.homed_end_mm == r.end_mm
+    out = r.summary()
+    assert "position set:" in out and f"{r.set_after_counts} counts" in out
+
+
+@pytest.mark.parametrize("offset", [0.0, 2.5])
+def test_move_to_home_after_gotoy_same_session(tmp_path, offset):
+    # the simulated devices live as long as the session: home, then move in the same one
+    from controller.canopen.world import SimWorld
+    cfg = cfg_of(tmp_path, homing=GOTOY.replace("}", f", home_offset: {offset}}}"))
+    ax = am._axis(cfg, "y")
+    with SimWorld(cfg) as world:
+        dev = world.device("y")
+        jobs = [am.GotoYJob(ax, cfg.period_s), am.MoveJob(ax, cfg.period_s, offset)]
+        ctl = am.MotionController(cfg, world.transport, jobs)
+        home, mv = am.run_jobs(ctl)
+        assert home.ok and mv.ok, (home.message, mv.message)
+        # the move starts where homing ended (new coordinate) and ends on the home offset
+        assert mv.start_mm == home.set_after_mm == home.setpoint_mm
+        assert mv.end_counts == mv.targets[-1] == round(offset * CPM)
+        check_stream(mv)
+        # physically at the latched home: near the home switch edge (2000 counts, passed at
+        # the creep speed in the homing direction)
+        assert abs(_physical(dev) - home.latched_mm * CPM) <= 1
+        assert 2000 - 1000 < _physical(dev) <= 2000
+        assert int(dev.load(0x60FD, 0)) & am.DI_HOME
+
+
+def test_gotoy_set_position_error(tmp_path, monkeypatch):
+    # the drive refuses the set (method 1 is not simulated: homing error, bit 13): the job
+    # fails with a clear error, back in CSP; the latched position is still reported
+    monkeypatch.setattr(am.GotoYJob, "SET_METHOD", 1)
+    cfg = cfg_of(tmp_path, initial=50000)
+    devs = []
+    (r,) = am.home(cfg, "y", setup=_device(devs))
+    assert not r.ok
+    assert r.result == "ERROR_SET_POSITION" and "bit 13" in r.message
+    assert r.states[-2:] == ["SET_POSITION", "CSP"]
+    assert int(devs[0].load(0x6061, 0)) == 8
+    assert r.latched_mm is not None and r.home_offset_mm == r.latched_mm
+    assert r.set_after_counts == r.set_before_counts  # not moved, not set

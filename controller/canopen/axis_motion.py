@@ -16,7 +16,13 @@ one session -- one boot, one enable -- and :func:`home` homes several axes that 
   (jerk-limited) early so that it never passes the axis' min/max.
 * :class:`GotoYJob` -- :class:`~controller.motion.GotoY`: the slow-down sensor (60FDh bit
   16), the home switch (bit 2) and the limit switches (bits 0/1) come from a drive TPDO
-  that maps 60FDh (transmission 1); a limit switch aborts with a clear error.
+  that maps 60FDh (transmission 1); a limit switch aborts with a clear error.  At the end
+  the drive's position is set so that the latched home reads ``homing.home_offset`` (the
+  homed coordinate, kept by the drive for later commands): once the drive stands on the
+  last setpoint, 6098h = 37 ("current position as home"), 6060h = 6, 6064h read, 607Ch =
+  home offset + (6064h - latched home), controlword bit 4 until "homing attained", then
+  607Ah = 6064h and 6060h = 8 again (SDO between two cycles, as for the drive's homing);
+  the report has the latched position and 6064h before/after the set.
 * :class:`DriveHomingJob` -- the drive's own homing mode: 6098h/6099h/609Ah/607Ch by SDO,
   6060h = 6, controlword bit 4 (after one cycle with it low), then statusword bit 12 (homing
   attained, with bit 10) or bit 13 (homing error) within the configured time-out; then
@@ -88,6 +94,14 @@ class MotionReport:
     end_counts: int = 0  #: 6064h at the end
     setpoint_mm: float = math.nan  #: the last setpoint (exact end position of the profile)
     home_offset_mm: float | None = None  #: homing: the raw position of the axis' 0
+    #: GotoY: where home was latched, in the coordinate before the position was set [mm]
+    latched_mm: float | None = None
+    #: GotoY: the drive's position (6064h) set at the end (method 37, 607Ch): before and
+    #: after [counts] / [mm]; None if it was not set
+    set_before_counts: int | None = None
+    set_after_counts: int | None = None
+    set_before_mm: float | None = None
+    set_after_mm: float | None = None
     time_s: float = 0.0  #: from the job's start to its end
     cycles: int = 0
     targets: list[int] = field(default_factory=list)  #: 607Ah sent each cycle [counts]
@@ -108,6 +122,10 @@ class MotionReport:
                  (f"  end:      {self.end_mm:.4f} {unit} ({self.end_counts} counts), "
                   f"setpoint {self.setpoint_mm:.4f} {unit}"),
                  f"  time:     {self.time_s:.3f} s ({self.cycles} cycles)"]
+        if self.set_after_counts is not None:
+            lines.append(f"  position set: {self.set_before_mm:.4f} -> {self.set_after_mm:.4f} "
+                         f"{unit} ({self.set_before_counts} -> {self.set_after_counts} counts; "
+                         f"home latched at {self.latched_mm:.4f} {unit})")
         if self.home_offset_mm is not None:
             lines.append(f"  home offset: {self.home_offset_mm:.4f} {unit} (end at "
                          f"{self.homed_end_mm:.4f} {unit} in homed coordinates)")
@@ -347,6 +365,121 @@ class GotoYJob(_SetpointJob):
 
     def ended(self, out) -> None:
         self.report.home_offset_mm = out.home_offset_mm
+        self.report.latched_mm = out.home_offset_mm
+
+    # -- the end: set the drive's position (homing mode, method 37) ---------------------------
+    #: 6098h method "current position as home" (37; 35 is its older number, same meaning)
+    SET_METHOD = 37
+    #: cycles to wait for the drive to stand on the last setpoint before the set
+    SETTLE_CYCLES_MAX = 50
+    #: time-out for "homing attained" of method 37 [s]
+    SET_TIMEOUT_S = 1.0
+
+    phase = "gotoy"  #: gotoy | settle | setup | low | run | back | csp
+    _pending: tuple[str, str] = ("", "")
+    _expected = 0
+    _hold = 0
+    _stable = 0
+    _k_set = 0
+    sdo: SdoClient | None = None
+
+    def attach(self, ctl: MotionController, io: AxisIO) -> None:
+        super().attach(ctl, io)
+        t = ctl.tc.timeouts
+        self.sdo = SdoClient(ctl.transport, io.node_id, io.label, t.sdo_s, t.sdo_retries)
+
+    def finish(self, ctl: MotionController, k: int, ok: bool, result: str,
+               message: str = "") -> None:
+        if ok and self.phase == "gotoy":
+            # GotoY finished: the job ends after the drive's position has been set
+            self.phase = "settle"
+            self._pending = (result, message)
+            self._k_set = k
+            return
+        super().finish(ctl, k, ok, result, message)
+
+    def masks_bit13(self) -> bool:
+        return self.phase in ("low", "run", "back")
+
+    def _fail_set(self, ctl: MotionController, k: int, message: str) -> None:
+        self.phase = "csp"
+        super().finish(ctl, k, False, "ERROR_SET_POSITION", message)
+
+    def between(self, ctl: MotionController) -> None:
+        if self.done or self.phase not in ("setup", "back"):
+            return
+        sdo, sc, r = self.sdo, self.ax.scale, self.report
+        if self.phase == "setup":
+            h = self.ax.homing or AxisHomingConfig()
+            sdo.download(0x6098, 0, self.SET_METHOD.to_bytes(1, "little", signed=True))
+            sdo.download(0x6060, 0, bytes([cia402.MODE_HM]))
+            # in homing mode (not started) the drive holds: read where it stands now
+            before = sdo.upload_int(0x6064, 0)
+            before_mm = sc.from_counts(before)
+            after_mm = h.home_offset + (before_mm - r.latched_mm)
+            self._expected = sc.to_counts(after_mm)
+            sdo.download(0x607C, 0, self._expected.to_bytes(4, "little", signed=True))
+            r.set_before_counts, r.set_before_mm = before, before_mm
+            self.phase = "low"
+        else:  # back
+            actual = sdo.upload_int(0x6064, 0)
+            sdo.download(0x607A, 0, actual.to_bytes(4, "little", signed=True))
+            sdo.download(0x6060, 0, bytes([cia402.MODE_CSP]))
+            self.io.hold = actual
+            r.set_after_counts, r.set_after_mm = actual, sc.from_counts(actual)
+            self.phase = "csp"
+            self.state("CSP")
+
+    def cycle(self, ctl: MotionController, k: int) -> tuple[int, int]:
+        if self.phase == "gotoy":
+            out = super().cycle(ctl, k)
+            self._hold = out[1]
+            return out
+        io = self.io
+        inp = io.input
+        actual = inp.actual if inp is not None else self._hold
+        if self.phase == "settle":
+            self.state("SET_POSITION")
+            self._stable = self._stable + 1 if actual == self._hold else 0
+            if self._stable >= 2 or k - self._k_set >= self.SETTLE_CYCLES_MAX:
+                self.phase = "setup"  # the SDO transfers follow before the next cycle
+            return cia402.CW_ENABLE, self._hold
+        if self.phase == "setup":
+            return cia402.CW_ENABLE, self._hold
+        if self.phase == "low":  # one cycle with bit 4 low, then the rising edge
+            self.phase = "run"
+            self._k_start = k
+            return cia402.CW_ENABLE, actual
+        if self.phase == "run":
+            sw = inp.statusword if inp is not None else 0
+            if sw & SW_HOMING_ERROR:
+                self._set_error = (f"the drive reports a homing error (statusword {sw:04X}h "
+                                   f"bit 13) with method {self.SET_METHOD}")
+            elif sw & SW_HOMING_ATTAINED and sw & cia402.SW_TARGET_REACHED:
+                self._set_error = None
+            elif (k - self._k_start) * self.period_s > self.SET_TIMEOUT_S:
+                self._set_error = (f"method {self.SET_METHOD} not attained within "
+                                   f"{self.SET_TIMEOUT_S:g} s (statusword {sw:04X}h)")
+            else:
+                return cia402.CW_ENABLE | CW_HOMING_START, actual
+            self.phase = "back"
+            return cia402.CW_ENABLE, actual
+        if self.phase == "back":
+            return cia402.CW_ENABLE, actual
+        # csp: back in CSP, holding where the drive stands (the new coordinate)
+        r = self.report
+        r.setpoint_mm = self.ax.scale.from_counts(io.hold)
+        err = getattr(self, "_set_error", None)
+        tol = max(2, round(0.01 * self.ax.scale.counts_per_unit))
+        if err is None and abs(r.set_after_counts - self._expected) > tol:
+            err = (f"6064h reads {r.set_after_counts} counts after the set, "
+                   f"{self._expected} expected (607Ch)")
+        if err is not None:
+            self._fail_set(ctl, k, err)
+        else:
+            r.home_offset_mm = 0.0  # the drive's position is now the homed coordinate
+            super().finish(ctl, k, True, *self._pending)
+        return cia402.CW_ENABLE, io.hold
 
 
 class NoHomingJob(Job):

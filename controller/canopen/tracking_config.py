@@ -36,7 +36,8 @@ scales).  Keys (``*`` = required)::
               timeout_s: 60          # gotoy: whole procedure; drive: "homing attained"
               state_timeouts: {small_v_s: 10}   # gotoy: per state (HomingTimeouts fields)
               home_offset: 0         # none: raw position [mm] of the axis' 0;
-                                     #   drive: 607Ch [mm]
+                                     #   drive: 607Ch [mm]; gotoy: what the latched
+                                     #   home reads afterwards [mm] (drive position set)
               drive_method: 19       # drive: 6098h
               switch_vel: 50         # drive: 6099h:01 [mm/s]
               zero_vel: 5            # drive: 6099h:02 [mm/s]
