@@ -10,6 +10,7 @@ variables CAN_INTERFACE, CAN_CHANNEL, CAN_BITRATE).  Without a bitrate the bus.y
 from __future__ import annotations
 
 import argparse
+import signal
 from typing import Any
 
 import can
@@ -53,3 +54,14 @@ def open_bus(args: argparse.Namespace, default_bitrate: int) -> can.BusABC:
     except Exception as exc:  # python-can raises assorted errors per backend
         raise CanError(f"cannot open the CAN bus {config.get('interface')}:"
                        f"{config.get('channel')}: {exc}") from exc
+
+
+def set_sigterm(handler):
+    """Install a SIGTERM handler; returns the previous one.  Only the main thread can: elsewhere
+    (a command run in-process by a test) it is a no-op returning None, as is ``handler=None``."""
+    if handler is None:
+        return None
+    try:
+        return signal.signal(signal.SIGTERM, handler)
+    except ValueError:  # not the main thread
+        return None

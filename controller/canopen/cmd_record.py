@@ -9,7 +9,6 @@ file is closed properly and the exit code is 0).  Bus flags as ``cantrack run``
 from __future__ import annotations
 
 import argparse
-import signal
 import sys
 import time
 
@@ -39,10 +38,7 @@ def main(argv: list[str] | None = None, prog: str = "cantrack record") -> int:
     def on_term(signum, frame) -> None:
         stop[0] = True
 
-    try:
-        old = signal.signal(signal.SIGTERM, on_term)
-    except ValueError:  # not the main thread
-        old = None
+    old = canbus.set_sigterm(on_term)
     logger = can.Logger(args.output)
     count = 0
     t_end = None if args.duration is None else time.monotonic() + args.duration
@@ -57,8 +53,7 @@ def main(argv: list[str] | None = None, prog: str = "cantrack record") -> int:
     finally:
         logger.stop()
         bus.shutdown()
-        if old is not None:
-            signal.signal(signal.SIGTERM, old)
+        canbus.set_sigterm(old)
     if not args.quiet:
         print(f"{count} frames -> {args.output}", file=sys.stderr)
     return 0

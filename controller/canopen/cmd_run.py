@@ -27,7 +27,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import signal
 import sys
 import time
 from collections.abc import Callable
@@ -41,16 +40,6 @@ from .config import load_bus_config
 from .cycle import Controller, Phase
 from .report import status_line, summary_table, timing_summary, write_telemetry
 from .transport import RealtimeTransport
-
-
-def _set_sigterm(handler):
-    """Install a SIGTERM handler (main thread only; elsewhere a no-op returning None)."""
-    if handler is None:
-        return None
-    try:
-        return signal.signal(signal.SIGTERM, handler)
-    except ValueError:  # not the main thread (in-process tests)
-        return None
 
 
 def build_parser(prog: str) -> argparse.ArgumentParser:
@@ -209,7 +198,7 @@ def main(argv: list[str] | None = None, prog: str = "cantrack run") -> int:
     def on_term(signum, frame) -> None:
         terminated[0] = True
 
-    old_term = _set_sigterm(on_term)
+    old_term = canbus.set_sigterm(on_term)
 
     def on_cycle(ctl: Controller, rec) -> None:
         key = (rec.phase, rec.state)
@@ -258,7 +247,7 @@ def main(argv: list[str] | None = None, prog: str = "cantrack run") -> int:
                                                     time.perf_counter() - wall0, error))
             raise
     finally:
-        _set_sigterm(old_term)
+        canbus.set_sigterm(old_term)
         transport.close()
         if not args.quiet:
             print(file=sys.stderr)

@@ -17,7 +17,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import signal
 import sys
 import time
 from pathlib import Path
@@ -78,16 +77,6 @@ def apply_injection(rack: DeviceRack, node: str, action: str, arg: str | None) -
         raise ConfigError(f"action {action!r} does not apply to {node!r} ({d.kind})")
 
 
-def _set_sigterm(handler):
-    """Install a SIGTERM handler (main thread only; elsewhere a no-op returning None)."""
-    if handler is None:
-        return None
-    try:
-        return signal.signal(signal.SIGTERM, handler)
-    except ValueError:  # not the main thread (in-process tests)
-        return None
-
-
 def build_parser(prog: str) -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog=prog, description=__doc__.split("\n\n")[0])
     p.add_argument("config", help="bus.yml (slaves and the .simulation section)")
@@ -144,7 +133,7 @@ def main(argv: list[str] | None = None, prog: str = "cantrack sim-devices") -> i
     def on_term(signum, frame):  # SIGTERM: leave the loop, clean shutdown, exit 0
         stopping[0] = True
 
-    old_term = _set_sigterm(on_term)
+    old_term = canbus.set_sigterm(on_term)
     ready = args.ready_file is None
     try:
         while not stopping[0] and (t_end is None or clock.now_ns() * 1e-9 < t_end):
@@ -163,7 +152,7 @@ def main(argv: list[str] | None = None, prog: str = "cantrack sim-devices") -> i
     except KeyboardInterrupt:
         pass
     finally:
-        _set_sigterm(old_term)
+        canbus.set_sigterm(old_term)
         thread.stop()
         bus.shutdown()
         if not args.quiet:
