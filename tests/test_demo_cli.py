@@ -53,6 +53,10 @@ def test_demo_command(tmp_path):
     items = [d for d in lines if d["type"] == "item"]
     assert [i["outcome"] for i in items] == ["placed", "placed"]
     assert all(i["max_error_mm"] < 0.2 for i in items)
+    # the demo runs on the conveyor model: per-item records of the robot group, its IMFS
+    assert [i["model"]["status"] for i in items] == ["caught", "caught"]
+    assert all(i["model"]["time_to_sync_s"] > 0 for i in items)
+    assert {d["imfs"] for d in cycles if d["phase"] == "running"} == {0, 1, -1}
     assert {d["kind"] for d in lines if d["type"] == "event"} >= {"boot", "enabled"}
 
 
@@ -60,6 +64,7 @@ def test_demo_in_process_catches_follows_and_places(tmp_path, capsys):
     assert cmd_demo.main(["-q", "--no-plot", "--items", "3", "-o", str(tmp_path)]) == 0
     out = capsys.readouterr().out
     assert "items placed 3, missed 0, of 3" in out
+    assert "bus load 55.3 % (1106 bit per 2 ms cycle" in out  # unchanged by the model
     table = out.splitlines()[1:4]
     for row in table:  # item, outcome, trigger, sync after, max error, u at pick
         fields = row.split()

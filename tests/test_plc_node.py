@@ -295,11 +295,11 @@ def test_tpdo_remap_over_sdo_follows_cia301(rig):
 
 def test_demo_items_missed(tmp_path):
     """Two items at nearly the same place (the PLC reports one right after the photo-eye's):
-    the second leaves the window while the first is picked and placed: 2006h counts it and
-    TPDO3 reports it."""
+    the second leaves the window while the first is picked and placed (a long place dwell
+    keeps the robot busy): 2006h counts it and TPDO3 reports it."""
     cfg = load_bus_config(cmd_demo.DEFAULT_CONFIG)
     from dataclasses import replace
-    demo = replace(cfg.demo, items=1)
+    demo = replace(cfg.demo, items=1, place_dwell_s=2.0)
     app = PickPlace(demo)
     with SimWorld(cfg, record=True) as world:
         ctl = Controller(cfg, world.transport, app)

@@ -2,7 +2,8 @@
 
 A simulated conveyor encoder, four drives (x, y, z, c) and a photo-eye; the controller boots
 the bus (NMT, identity, SDO configuration, 402 enable), catches the items in the window,
-follows each for the pick, de-syncs and places it.  Stepped time by default (finishes in
+follows each for the pick, de-syncs and places it: a robot group on the conveyor model
+(:mod:`controller.canopen.demo`, :mod:`controller.conveyor`).  Stepped time by default (finishes in
 seconds), ``--realtime`` for wall-clock time.  Writes to ``-o DIR`` (default
 ./cantrack-demo/): ``bus.log`` (candump format, python-can's CanutilsLogWriter),
 ``telemetry.jsonl``, ``demo.png``.

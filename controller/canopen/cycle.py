@@ -492,8 +492,8 @@ class Controller:
             cycle=k, t_s=t_s, phase=self.phase.value, raw=master.raw,
             belt_mm=master.belt_mm if master.raw is not None else None,
             belt_vel=est.vel if est is not None and master.estimator.samples >= 3 else None,
-            state=int(tr.state) if tr is not None else 0,
-            imfs=int(tr.imfs) if tr is not None else 0,
+            state=self._track_state(tr),
+            imfs=self._imfs(tr),
             error=int(out.error) if out is not None else 0,
             setpoint=setpoint,
             targets=tuple([a.target for a in self.axes]),
@@ -501,6 +501,23 @@ class Controller:
             statuswords=tuple([a.input.statusword if a.input is not None else 0
                                for a in self.axes]),
             tracking_error=err, sync_late_us=0.0, compute_us=0.0)
+
+    def _track_state(self, tr: Tracker | None) -> int:
+        """Tracker state of the cycle record: the application's if it has one (the demo's
+        robot group; the controller's tracker passes its setpoint through), else the
+        tracker's."""
+        st = getattr(self.app, "track_state", None)
+        if st is not None and self.phase is Phase.RUNNING:
+            return int(st)
+        return int(tr.state) if tr is not None else 0
+
+    def _imfs(self, tr: Tracker | None) -> int:
+        """IMFS of the cycle record: the application's (the demo's robot group) if it has
+        one, else the tracker's."""
+        imfs = getattr(self.app, "imfs", None)
+        if imfs is not None and self.phase is Phase.RUNNING:
+            return int(imfs)
+        return int(tr.imfs) if tr is not None else 0
 
     def _translation_error(self, actual: tuple[float, ...], master: MotionState) -> float:
         """|actual - master| over the translation axes x, y, z [mm]."""

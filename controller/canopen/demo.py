@@ -1,26 +1,35 @@
-"""The demo's pick and place: photo-eye -> item on the belt -> window -> follow -> place.
+"""The demo's pick and place on the softMC conveyor model (:mod:`controller.conveyor`).
 
 One application (:class:`PickPlace`, the :class:`~controller.canopen.app.Application`
-interface) drives the :class:`~controller.tracking.Tracker` directly, cycle by cycle:
+interface) runs a :class:`~controller.conveyor.RobotGroup` ``robot`` on a linear
+:class:`~controller.conveyor.MovingFrame` ``belt``, one sample per controller cycle:
 
-    WAIT      an item is inside the window [start, end) -> engage (absolute) onto the item
-    APPROACH  Tracker SYNCING; SYNCED -> FOLLOW
-    FOLLOW    follow the item for ``pick_dwell_s`` (the pick) -> disengage (de-sync)
-    DESYNC    the tracker stops on the path; OFF -> engage onto the place position
-    PLACE     SYNCED at the place -> dwell ``place_dwell_s`` -> disengage -> WAIT
-    An item that leaves the window (u >= end) before its pick is *missed*; so is the item
-    being approached or followed when the tracker reports an error or the encoder goes
-    silent (the controller has started the de-sync then).
-
-Items: the photo-eye at u = ``photo_eye`` (coordinates u [mm] along the conveyor direction
-from its origin, like the window) reports the time of each rising edge (a timestamped
-input).  The item's belt coordinate is the measured belt travel of that cycle moved back by
-the estimated belt velocity x (t_cycle - t_edge); its machine position is then
-``origin + direction*(photo_eye + s - s_item) + across*lateral + z*height``, its angle the
-item's.  The place move is the same tracker engaged onto a master at rest at the place pose.
-
-To switch to the conveyor model (issue 3) later: :class:`Item`, :class:`Window` and
-:meth:`PickPlace._item_state` are the only places that know about items and frames.
+- master source: the belt travel [mm] the controller estimates from the encoder (position,
+  velocity, acceleration of :class:`~controller.tracking.MasterEstimate`), set on the frame
+  each cycle (``MovingFrame.set_master``).  The counts are scaled once, by
+  ``.tracking.conveyor.counts_per_mm`` in the estimator, so the frame's scale is 1 mm/unit;
+  frame direction and origin are ``.tracking.conveyor``'s, moved to the photo-eye (the
+  trigger point, MF.zero) at ``pick.height``;
+- photo-eye: each rising edge is a ``TRIGGER robot {MasterFrame = belt}`` whose value is the
+  belt travel at the edge (this cycle's measurement moved back by the estimated velocity x
+  (t_cycle - t_edge)); the entry goes into the robot's trigger buffer;
+- window: ``.tracking.window`` relative to the photo-eye (``Window.single(start - eye,
+  end - eye)``); the frame link engages the oldest item when it is inside the window and
+  reports an item that leaves it before the robot is synchronised: ``item_missed``, code
+  30238 (:data:`~controller.conveyor.ITEM_MISSED_CODE`);
+- the sequence (:class:`Step`): WAIT (an item in the buffer, no frame link left) ->
+  ``MasterFrame = belt`` (slave 5) and ``MOVES`` to the item's zero (lateral offset, angle) ->
+  APPROACH (IMFS 1 and the move done) -> FOLLOW ``pick.dwell_s`` -> ``NEXTITEM``,
+  ``MasterFrame = none`` (de-sync on the path), ``MOVES`` to the place -> PLACE (move done,
+  frame detached, dwell ``place.dwell_s``) -> WAIT.  Items that pass the window while the
+  robot places are missed (30238) when the robot takes them from the buffer;
+- output: the robot group's setpoint (world TCP; angle about z) is the master of the
+  controller's :class:`~controller.tracking.Tracker`, engaged once (absolute) at the start and
+  SYNCED from then on, so it passes the setpoint through unchanged to the kinematics and
+  counts (its master limits are lifted: the robot group limits its own motions with the
+  tracker's sync limits).  ``imfs`` (the cycle record, status line, telemetry, PLC 2001h) is
+  the robot group's.  Per-item figures come from the robot's ``ItemRecord`` (engaged and
+  synchronised samples, peak errors, status): ``Item.model`` in telemetry.jsonl.
 
 The simulated side (:class:`PhotoEye`) knows the true belt travel (the encoder's speed
 profile) and the items' belt positions (seeded pitch, lateral offset and angle), and turns
@@ -31,11 +40,22 @@ from __future__ import annotations
 
 import math
 import random
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from enum import Enum
 from typing import TYPE_CHECKING
 
-from ..tracking import MasterEstimate, Mode, MotionState, TrackState
+from ..conveyor import (
+    ITEM_MISSED_CODE,
+    Location,
+    MotionLimits,
+    MovingFrame,
+    RobotGroup,
+    Window,
+    q_axis_angle,
+)
+from ..conveyor.location import q_to_axis_angle
+from ..conveyor.sources import SourceState
+from ..tracking import Imfs, Limits, MasterEstimate, Mode, MotionState, Tracker, TrackState
 from .demo_config import DemoConfig
 
 if TYPE_CHECKING:
@@ -47,7 +67,6 @@ class Step(Enum):
     WAIT = "wait"
     APPROACH = "approach"
     FOLLOW = "follow"
-    DESYNC = "desync"
     PLACE = "place"
 
 
@@ -69,15 +88,8 @@ class Item:
     reason: str = ""
     max_error_mm: float = 0.0
     u_pick: float | None = None
-
-
-@dataclass(frozen=True)
-class Window:
-    start: float
-    end: float
-
-    def contains(self, u: float) -> bool:
-        return self.start <= u < self.end
+    entry_id: int | None = None  # its TRIGGER entry in the robot's buffer
+    model: dict = field(default_factory=dict)  # the conveyor model's ItemRecord.as_dict()
 
 
 class PhotoEye:
@@ -134,153 +146,190 @@ class PhotoEye:
 
 @dataclass
 class PickPlace:
-    """The demo sequence (see the module docstring)."""
+    """The demo sequence on the conveyor model (see the module docstring)."""
 
     demo: DemoConfig
     eye: PhotoEye | None = None
     step: Step = Step.WAIT
-    pending: list[Item] = field(default_factory=list)
     done_items: list[Item] = field(default_factory=list)
     current: Item | None = None
-    _step_cycle: int = 0
-    _start_cycle: int = 0
+    frame: MovingFrame | None = None
+    robot: RobotGroup | None = None
+    imfs_log: list[int] = field(default_factory=list)
+    _by_entry: dict = field(default_factory=dict)
+    _until: int = 0
     _end_cycle: int | None = None
 
-    # -- geometry -------------------------------------------------------------------------
-    def _frame(self, ctl: Controller) -> tuple[tuple, tuple, tuple]:
-        c = ctl.cfg.tracking.conveyor
-        d = c.direction
-        across = (-d[1], d[0], 0.0)
-        n = math.hypot(across[0], across[1])
-        across = (across[0] / n, across[1] / n, 0.0) if n > 1e-9 else (0.0, 1.0, 0.0)
-        return c.origin, d, across
+    @property
+    def imfs(self) -> int:
+        """IMFS of the robot group (0 before the start)."""
+        return int(self.robot.imfs) if self.robot is not None else 0
 
-    def _u(self, item: Item, belt: MasterEstimate) -> float:
-        return self.demo.photo_eye + belt.pos - item.s_item
+    @property
+    def track_state(self) -> TrackState:
+        """The state of the robot's belt tracking: its (first) frame link's tracker, OFF
+        without a link (the controller's own tracker just passes the setpoint through)."""
+        if self.robot is not None:
+            for link in self.robot.links:
+                if not link.done:
+                    return TrackState(link.tracker.state)
+        return TrackState.OFF
 
-    def _item_state(self, ctl: Controller, item: Item, belt: MasterEstimate) -> MotionState:
-        o, d, n = self._frame(ctl)
-        u = self._u(item, belt)
-        h = self.demo.pick_height
-        pos = tuple(o[i] + d[i] * u + n[i] * item.lateral + (h if i == 2 else 0.0)
-                    for i in range(3))
-        return MotionState(pos, tuple(x * belt.vel for x in d), tuple(x * belt.acc for x in d),
-                           item.angle, 0.0, 0.0)
-
-    def _place_state(self) -> MotionState:
-        return MotionState.at(*self.demo.place_position, self.demo.place_angle)
-
-    # -- Application -------------------------------------------------------------------------
     def start(self, ctl: Controller, cycle: int) -> None:
-        self._start_cycle = cycle
-        self._end_cycle = cycle + int(self.demo.duration_s / ctl.cfg.period_s)
         if self.eye is None:
             raise ValueError("PickPlace needs a photo-eye")
+        self._end_cycle = cycle + int(self.demo.duration_s / ctl.cfg.period_s)
+        conv = ctl.cfg.tracking.conveyor
+        o, d = conv.origin, conv.direction
+        pe = self.demo.photo_eye
+        w0, w1 = ctl.cfg.tracking.window
+        self.frame = MovingFrame(
+            "belt", directions=[d],
+            origin=Location.at(*(o[i] + d[i] * pe + (self.demo.pick_height if i == 2 else 0.0)
+                                 for i in range(3))),
+            window=Window.single(w0 - pe, w1 - pe))
+        tp = ctl.cfg.tracking.tracker
+        sp = ctl.tracker.setpoint
+        self._T = ctl.cfg.period_s
+        self.robot = RobotGroup("robot", replace(tp, sample_time_s=ctl.cfg.period_s),
+                                start=Location.from_axis_angle(sp.pos, (0.0, 0.0, 1.0), sp.ang),
+                                motion_limits=MotionLimits(
+                                    tp.sync_trans.vel, tp.sync_trans.acc, tp.sync_trans.jerk,
+                                    tp.sync_rot.vel, tp.sync_rot.acc, tp.sync_rot.jerk))
+        self._prev = sp
+        # the controller's tracker passes the robot's setpoint through (SYNCED, absolute);
+        # the robot group limits its own motions, so the master limits are the robot's
+        big = Limits(1e9, 1e9, 1e9)
+        ctl.tracker = Tracker(replace(tp, master_max_trans=big, master_max_rot=big), sp)
+        ctl.tracker.engage(Mode.ABSOLUTE)
 
-    def _goto(self, step: Step, cycle: int) -> None:
-        self.step = step
-        self._step_cycle = cycle
+    def _across(self, ctl: Controller) -> tuple[float, float, float]:
+        d = ctl.cfg.tracking.conveyor.direction
+        n = math.hypot(d[0], d[1])
+        return (-d[1] / n, d[0] / n, 0.0) if n > 1e-9 else (0.0, 1.0, 0.0)
 
     def _finish_item(self, item: Item, outcome: str, reason: str = "") -> None:
+        if item.outcome != "pending":
+            return
         item.outcome = outcome
         item.reason = reason
         self.done_items.append(item)
         if item is self.current:
             self.current = None
-        if item in self.pending:
-            self.pending.remove(item)
 
     def update(self, ctl: Controller, cycle: int, belt: MasterEstimate) -> MotionState:
-        tr = ctl.tracker
-        assert tr is not None
-        T = ctl.cfg.period_s
-        window = Window(*ctl.cfg.tracking.window)
-        t_now = ctl.t0 + cycle * ctl.period_ns  # the SYNC of this cycle (sample time)
-        # new items: belt coordinate at the edge, from this cycle's measurement
+        r, f = self.robot, self.frame
+        T = self._T
+        t_now = ctl.t0 + cycle * ctl.period_ns
+        f.set_master([SourceState(belt.pos, belt.vel, belt.acc)], r.k)
         for item in self.eye.edges_until(t_now):
             s_meas = ctl.master.belt_mm if ctl.master.belt_mm is not None else belt.pos
             item.s_item = s_meas - belt.vel * (t_now - item.t_edge_ns) * 1e-9
             item.trigger_cycle = cycle
-            self.pending.append(item)
-        # items that left the window unpicked
-        for item in list(self.pending):
-            if item is not self.current and self._u(item, belt) >= window.end:
-                self._finish_item(item, "missed", "left the window")
-                ctl.events.add(cycle, (t_now - ctl.t0) * 1e-9, "demo", "item_missed",
-                               f"item {item.index} left the window", level=20)
+            e = r.trigger(f, values=[item.s_item])
+            item.entry_id = e.id
+            self._by_entry[e.id] = item
         step = self.step
-        if step is Step.WAIT:
-            if ctl.master.ready and tr.state is TrackState.OFF:
-                for item in self.pending:
-                    if window.contains(self._u(item, belt)):
-                        self.current = item
-                        item.engage_cycle = cycle
-                        tr.engage(Mode.ABSOLUTE)
-                        self._goto(Step.APPROACH, cycle)
-                        break
-        elif step in (Step.APPROACH, Step.FOLLOW):
+        if step == Step.WAIT:
+            entry = r.buffer.current(f.name)
+            while entry is not None and self._by_entry[entry.id].outcome != "pending":
+                r.nextitem(f)  # (an item de-synced by STOP stays in the buffer: drop it)
+                entry = r.buffer.current(f.name)
+            if entry is not None and not r.links and ctl.master.ready:
+                item = self._by_entry[entry.id]
+                self.current = item
+                r.set_master_frame(f, Mode.RELATIVE)
+                n = self._across(ctl)
+                z = f.zero(entry).pos
+                r.moves(Location((z[0] + n[0] * item.lateral, z[1] + n[1] * item.lateral,
+                                  z[2]), q_axis_angle((0.0, 0.0, 1.0), item.angle)),
+                        name=f"approach item {item.index}")
+                self.step = Step.APPROACH
+        elif step == Step.APPROACH:
+            if r.imfs == Imfs.SYNCHRONIZED and not r.virtual.busy:
+                self._until = cycle + round(self.demo.pick_dwell_s / T)
+                self.step = Step.FOLLOW
+        elif step == Step.FOLLOW:
             item = self.current
-            assert item is not None
-            u = self._u(item, belt)
-            if tr.state not in (TrackState.SYNCING, TrackState.SYNCED):
-                self._finish_item(item, "missed", f"tracker error {tr.error.name}")
-                self._goto(Step.DESYNC, cycle)
-            elif u >= window.end:
-                tr.disengage()
-                self._finish_item(item, "missed", "left the window during the approach")
-                self._goto(Step.DESYNC, cycle)
-            elif step is Step.APPROACH and tr.state is TrackState.SYNCED:
-                item.synced_cycle = cycle
-                self._goto(Step.FOLLOW, cycle)
-            elif step is Step.FOLLOW:
-                item.max_error_mm = max(item.max_error_mm, ctl.last_tracking_error)
-                if (cycle - self._step_cycle) * T >= self.demo.pick_dwell_s:
-                    item.picked_cycle = cycle
-                    item.u_pick = u
-                    tr.disengage()
-                    self.pending.remove(item)
-                    self._goto(Step.DESYNC, cycle)
-        elif step is Step.DESYNC:
-            if tr.state is TrackState.OFF:
-                if self.current is not None and self.current.picked_cycle is not None:
-                    tr.engage(Mode.ABSOLUTE)
-                    self._goto(Step.PLACE, cycle)
-                else:
-                    self.current = None
-                    self._goto(Step.WAIT, cycle)
-        elif step is Step.PLACE:
+            item.max_error_mm = max(item.max_error_mm, ctl.last_tracking_error)
+            if cycle >= self._until:
+                item.picked_cycle = cycle
+                item.u_pick = self.demo.photo_eye + belt.pos - item.s_item
+                r.nextitem(f)
+                r.master_frame = None
+                p = self.demo.place_position
+                r.moves(Location(tuple(p), q_axis_angle((0.0, 0.0, 1.0), self.demo.place_angle)),
+                        name="place")
+                self.step = Step.PLACE
+        elif step == Step.PLACE:
             item = self.current
-            if tr.state is TrackState.SYNCED:
+            if not r.virtual.busy and not r.links:
                 if item.placed_cycle is None:
-                    item.placed_cycle = cycle  # at the place; dwell, then release
+                    item.placed_cycle = cycle
                 if (cycle - item.placed_cycle) * T >= self.demo.place_dwell_s:
-                    tr.disengage()
                     self._finish_item(item, "placed")
-                    self._goto(Step.DESYNC, cycle)
-            elif tr.state is TrackState.OFF:
-                tr.engage(Mode.ABSOLUTE)  # (an error de-synced the place move: again)
-        # the master of the next SYNC
-        if self.step is Step.PLACE or (self.step is Step.DESYNC and self.current is not None
-                                       and self.current.picked_cycle is not None):
-            return self._place_state()
-        if self.current is not None:
-            return self._item_state(ctl, self.current, belt)
-        return self._place_state()
+                    self.step = Step.WAIT
+        if ctl.tracker.state is TrackState.OFF and ctl.master.ready:
+            ctl.tracker.engage(Mode.ABSOLUTE)  # (de-synced by a silent encoder: follow again)
+        out = r.update()
+        self.imfs_log.append(int(out.imfs))
+        for e in out.events:
+            ev_item = self._by_entry.get(e.item) if e.item is not None else None
+            if ev_item is not None and e.kind == "engaged" and ev_item.outcome == "pending":
+                ev_item.engage_cycle = cycle
+                ev_item.synced_cycle = None
+            elif ev_item is not None and e.kind == "synchronized" \
+                    and ev_item.synced_cycle is None:
+                ev_item.synced_cycle = cycle
+            if e.kind == "item_missed" and e.item in self._by_entry:
+                item = self._by_entry[e.item]
+                self._finish_item(item, "missed", f"left the window ({e.code})")
+                if self.step in (Step.APPROACH, Step.FOLLOW):
+                    self.step = Step.WAIT
+                ctl.events.add(cycle, (t_now - ctl.t0) * 1e-9, "demo", "item_missed",
+                               f"item {item.index} missed ({ITEM_MISSED_CODE}): {e.message}",
+                               level=20)
+        loc = out.setpoint
+        axis, ang = q_to_axis_angle(loc.ori)
+        if axis[2] < 0:
+            ang = -ang
+        prev = self._prev
+        vel = tuple(out.velocity)
+        acc = tuple((a - b) / T for a, b in zip(vel, prev.vel))
+        ang_vel = (ang - prev.ang) / T
+        m = MotionState(tuple(loc.pos), vel, acc, ang, ang_vel, (ang_vel - prev.ang_vel) / T)
+        self._prev = m
+        return m
+
+    def plc_engage(self, ctl: Controller, mode: Mode) -> None:
+        """The PLC's 2005h: 0 de-syncs the robot from the belt (``STOP``: the item being
+        approached or followed is missed); 3/5 are the program's to give (ignored)."""
+        if mode == Mode.OFF and self.robot is not None:
+            if self.current is not None and self.step in (Step.APPROACH, Step.FOLLOW):
+                self._finish_item(self.current, "missed", "disengaged by the PLC")
+                self.step = Step.WAIT
+            self.robot.stop()
 
     def master_lost(self, ctl: Controller, cycle: int) -> None:
         if self.current is not None and self.step in (Step.APPROACH, Step.FOLLOW):
             self._finish_item(self.current, "missed", "encoder silent")
-            self._goto(Step.DESYNC, cycle)
+            self.robot.stop()
+            self.step = Step.WAIT
 
     def done(self, ctl: Controller, cycle: int) -> bool:
         if self._end_cycle is not None and cycle >= self._end_cycle:
             return True
         all_seen = self.eye is not None and len(self.done_items) == len(self.eye.items)
-        return all_seen and self.step is Step.WAIT and ctl.tracker is not None \
-            and ctl.tracker.state is TrackState.OFF
+        return all_seen and self.step == Step.WAIT and not self.robot.links \
+            and not self.robot.virtual.busy
 
-    # -- results ----------------------------------------------------------------------------
     def items(self) -> list[Item]:
+        """All items (by index), with the conveyor model's telemetry in ``Item.model``."""
+        if self.robot is not None:
+            for it in self._by_entry.values():
+                rec = self.robot.records.get(it.entry_id)
+                if rec is not None:
+                    it.model = rec.as_dict()
         seen = {i.index for i in self.done_items}
         rest = [i for i in (self.eye.items if self.eye else []) if i.index not in seen]
         return sorted(self.done_items + rest, key=lambda i: i.index)

@@ -15,7 +15,9 @@ commands it over SDO and PDO.
   tracker is not OFF), 08000020h objects owned by the bus configuration (1005h, 1006h, 1014h,
   1016h, 1017h, 1019h ...), 05040001h segmented/block transfers;
 - every cycle (chained onto ``Controller.on_cycle``): 2000h-2003h and 2006h-2008h from the
-  cycle record, the tracker, the controller and the application; then the event-driven TPDOs
+  cycle record (state and IMFS: the application's ``track_state``/``imfs`` if it has them,
+  the demo's robot group, else the tracker's), the tracker, the controller and the
+  application; then the event-driven TPDOs
   (type 254/255: sent when the data changed and the inhibit time 18xxh:3 has passed, or when
   the event timer 18xxh:5 expired).  The TPDOs therefore go out on the cycle's time grid
   (2 ms), after the drives' RPDOs of that cycle.  A PLC may set a TPDO synchronous (18xxh:2
@@ -266,7 +268,10 @@ class PlcNode:
             self._trigger_input(value)
         elif index == 0x2010:
             tr = self.ctl.tracker
-            if tr is not None and tr.state is not TrackState.OFF:
+            state = getattr(self.app, "track_state", None)  # (the demo's robot group)
+            if state is None and tr is not None:
+                state = tr.state
+            if state is not None and state is not TrackState.OFF:
                 raise SdoAbort(ABORT_DEVICE_STATE)
             if not value > 0:
                 raise SdoAbort(ABORT_VALUE_RANGE)
@@ -428,8 +433,8 @@ class PlcNode:
         """2000h-2003h, 2006h-2008h from this cycle."""
         ctl = self.ctl
         tr = ctl.tracker
-        self.put(0x2000, 0, int(tr.state) if tr is not None else rec.state)
-        self.put(0x2001, 0, int(tr.imfs) if tr is not None else rec.imfs)
+        self.put(0x2000, 0, rec.state)  # (the application's state if it has one)
+        self.put(0x2001, 0, rec.imfs)  # (the application's IMFS if it has one)
         self.put(0x2002, 0, int(tr.error) if tr is not None else rec.error)
         self.put(0x2003, 0, self.item_count() & 0xFFFFFFFF)
         self.put(0x2006, 0, self.items_missed() & 0xFFFFFFFF)

@@ -1,0 +1,117 @@
+"""``cantrack demo`` runs on the softMC conveyor model (:mod:`controller.conveyor`).
+
+The demo's application (:class:`controller.canopen.demo.PickPlace`) is a RobotGroup on a
+linear MovingFrame fed by the controller's belt estimate: photo-eye edges are TRIGGERs in the
+robot's trigger buffer, the frame's window decides when tracking starts and reports missed
+items (30238), NEXTITEM after each pick, and the robot's setpoint is what goes to the drives.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+
+from controller.canopen import cmd_demo
+from controller.canopen.config import load_bus_config
+from controller.canopen.cycle import Controller, Phase
+from controller.canopen.demo import PhotoEye, PickPlace, Step
+from controller.canopen.world import SimWorld
+from controller.conveyor import ITEM_MISSED_CODE, LINEAR, ItemStatus, MovingFrame, RobotGroup
+
+
+def _run(demo, extra_trigger=False, max_cycles=8000, watch=None):
+    cfg = load_bus_config(cmd_demo.DEFAULT_CONFIG)
+    demo = replace(cfg.demo, **demo)
+    app = PickPlace(demo)
+    with SimWorld(cfg) as world:
+        ctl = Controller(cfg, world.transport, app)
+        ctl.boot()
+        ctl.start()
+        app.eye = PhotoEye(world.device(cfg.tracking.conveyor.node).profile, demo,
+                           world.clock.now_ns() * 1e-9)
+        triggered = False
+        while ctl.k < max_cycles:
+            ctl.step()
+            if ctl.phase is Phase.ENABLING:
+                continue
+            if watch is not None:
+                watch(ctl, app)
+            if app.done(ctl, ctl.k - 1):
+                break
+            if extra_trigger and not triggered and app.eye.detected == 1:
+                triggered = True  # a second item right behind the first (a PLC trigger)
+                app.eye.trigger(ctl.clock.now_ns())
+    return ctl, app
+
+
+def test_demo_runs_on_the_conveyor_model():
+    seen = {"setpoint_ok": 0, "steps": set(), "buffer_max": 0}
+
+    def watch(ctl, app):
+        seen["steps"].add(app.step)
+        r = app.robot
+        if r is None or r.last_output is None or ctl.last_output is None:
+            return
+        seen["buffer_max"] = max(seen["buffer_max"], len(r.buffer))
+        # the controller's setpoint is the robot group's (the tracker passes it through)
+        if ctl.tracker.state.name == "SYNCED":
+            d = max(abs(a - b) for a, b in zip(ctl.last_output.setpoint.pos,
+                                               r.last_output.setpoint.pos))
+            assert d < 1e-9
+            seen["setpoint_ok"] += 1
+
+    ctl, app = _run({"items": 3}, watch=watch)
+    items = app.items()
+    assert [i.outcome for i in items] == ["placed"] * 3
+    assert isinstance(app.robot, RobotGroup) and isinstance(app.frame, MovingFrame)
+    assert app.frame.type == LINEAR and app.robot.slave == 0
+    w0, w1 = ctl.cfg.tracking.window
+    assert app.frame.window.upstream[0] == w0 - app.demo.photo_eye
+    assert app.frame.window.downstream[0] == w1 - app.demo.photo_eye
+    assert seen["setpoint_ok"] > 1000
+    assert seen["steps"] == {Step.WAIT, Step.APPROACH, Step.FOLLOW, Step.PLACE}
+    # every photo-eye edge went through the trigger buffer; NEXTITEM emptied it
+    assert seen["buffer_max"] >= 1 and len(app.robot.buffer) == 0
+    assert sorted(app.robot.records) == [i.entry_id for i in items]
+    assert all(app.robot.records[i.entry_id].status == ItemStatus.CAUGHT for i in items)
+    # IMFS: wait (0) -> synchronised (1) -> de-sync (-1) -> ... , once per item
+    imfs = app.imfs_log
+    runs = [v for k, v in enumerate(imfs) if k == 0 or imfs[k - 1] != v]
+    assert runs[:4] == [0, 1, -1, 0] and runs.count(1) == 3 and runs.count(-1) == 3
+    # the cycle records carry the robot group's IMFS
+    rec_imfs = [r.imfs for r in ctl.trace if r.phase == "running"]
+    assert set(rec_imfs) == {0, 1, -1}
+    # the summary's figures come from the model: engaged (window entry) -> synchronised
+    for it in items:
+        m = it.model
+        assert m["status"] == "caught" and m["time_to_sync_s"] is not None
+        assert abs((it.synced_cycle - it.engage_cycle) * ctl.cfg.period_s
+                   - m["time_to_sync_s"]) < 1e-9
+        assert w0 <= it.u_pick < w1
+
+
+def test_item_passing_the_window_while_the_robot_is_busy_is_missed_30238():
+    ctl, app = _run({"items": 1, "place_dwell_s": 2.0}, extra_trigger=True)
+    items = app.items()
+    assert [i.outcome for i in items] == ["placed", "missed"]
+    missed = items[1]
+    assert str(ITEM_MISSED_CODE) in missed.reason and ITEM_MISSED_CODE == 30238
+    rec = app.robot.records[missed.entry_id]
+    assert rec.status == ItemStatus.MISSED and rec.error == "Item missed (30238)"
+    assert missed.model["status"] == "missed"
+    ev = [e for e in ctl.events if e.kind == "item_missed"]
+    assert len(ev) == 1 and "30238" in ev[0].detail
+    assert len(app.robot.buffer) == 0
+
+
+def test_demo_telemetry_has_the_model_item_records(tmp_path, capsys):
+    assert cmd_demo.main(["-q", "--no-plot", "--items", "2", "-o", str(tmp_path)]) == 0
+    out = capsys.readouterr().out
+    assert "items placed 2, missed 0, of 2" in out
+    lines = [json.loads(x) for x in (tmp_path / "telemetry.jsonl").read_text().splitlines()]
+    items = [d for d in lines if d["type"] == "item"]
+    assert [d["model"]["status"] for d in items] == ["caught", "caught"]
+    assert all(d["model"]["frame"] == "belt" and d["model"]["robot"] == "robot"
+               for d in items)
+    imfs = {d["imfs"] for d in lines if d["type"] == "cycle" and d["phase"] == "running"}
+    assert imfs == {0, 1, -1}
