@@ -29,6 +29,39 @@ _DUMMY_FORMAT = {0x0001: "?", 0x0002: "b", 0x0003: "h", 0x0004: "i", 0x0005: "B"
                  0x0006: "H", 0x0007: "I"}
 
 
+@dataclass(frozen=True)
+class PdoParams:
+    """A PDO as its communication (1400h/1800h + n) and mapping (+200h) objects describe it."""
+
+    cob_id: int
+    transmission: int
+    inhibit_ns: int  # sub 3, in 100 us units on the bus (0: none or not a TPDO)
+    event_ns: int  # sub 5, in ms on the bus (0: none or not a TPDO)
+    mapping: list[tuple[int, int, int]]  # (index, sub-index, bit length)
+
+
+def read_pdo_params(load, has, comm: int, tpdo: bool) -> PdoParams | None:
+    """Decode the PDO at communication object ``comm`` from an object store.
+
+    ``load(index, sub)`` returns a stored value, ``has(index, sub)`` whether the object exists.
+    None when the PDO is invalid (COB-ID bit 31) or maps nothing.  Inhibit time and event
+    timer are read for TPDOs only.
+    """
+    cob = int(load(comm, 1))
+    if cob & INVALID:
+        return None
+    n = int(load(comm + 0x200, 0))
+    mapping = []
+    for i in range(1, n + 1):
+        v = int(load(comm + 0x200, i))
+        mapping.append((v >> 16, (v >> 8) & 0xFF, v & 0xFF))
+    if not mapping:
+        return None
+    inhibit = int(load(comm, 3)) * 100_000 if tpdo and has(comm, 3) else 0
+    event = int(load(comm, 5)) * 1_000_000 if tpdo and has(comm, 5) else 0
+    return PdoParams(cob & 0x7FF, int(load(comm, 2)), inhibit, event, mapping)
+
+
 def is_cyclic(transmission: int) -> bool:
     """Sent on SYNC (transmission types 0...240)."""
     return 0 <= transmission <= 240

@@ -47,6 +47,8 @@ from canopen.objectdictionary import REAL32, REAL64, ODVariable
 
 from ..tracking import Mode, TrackState
 from . import od as odm
+from .concise import INVALID
+from .pdo import read_pdo_params
 
 if TYPE_CHECKING:
     from .cycle import Controller, CycleRecord
@@ -68,7 +70,6 @@ ABORT_GENERAL = 0x08000000
 ABORT_STORE = 0x08000020
 ABORT_DEVICE_STATE = 0x08000022
 
-INVALID = 0x80000000
 
 #: 1000h-1FFFh objects a PLC may write (the rest is set by the bus configuration)
 _WRITABLE_COMM = set(range(0x1400, 0x1600)) | set(range(0x1600, 0x1800)) \
@@ -355,20 +356,10 @@ class PlcNode:
     def _read_pdo(self, comm: int, number: int) -> PdoChannel | None:
         if (comm, 1) not in self._vars:
             return None
-        cob = int(self.get(comm, 1))
-        if cob & INVALID:
+        p = read_pdo_params(self.get, lambda i, s: (i, s) in self._vars, comm, tpdo=True)
+        if p is None:
             return None
-        n = int(self.get(comm + 0x200, 0))
-        mapping = []
-        for i in range(1, n + 1):
-            e = int(self.get(comm + 0x200, i))
-            mapping.append((e >> 16, (e >> 8) & 0xFF, e & 0xFF))
-        if not mapping:
-            return None
-        has = lambda s: (comm, s) in self._vars
-        return PdoChannel(number, cob & 0x7FF, int(self.get(comm, 2)),
-                          int(self.get(comm, 3)) * 100_000 if has(3) else 0,
-                          int(self.get(comm, 5)) * 1_000_000 if has(5) else 0, mapping)
+        return PdoChannel(number, p.cob_id, p.transmission, p.inhibit_ns, p.event_ns, p.mapping)
 
     def _rebuild_pdos(self) -> None:
         for cob in self.rpdos:

@@ -36,6 +36,8 @@ from canopen.sdo import SdoAbortedError
 
 from .. import od as odm
 from ..clock import Clock
+from ..concise import INVALID
+from ..pdo import read_pdo_params
 
 NMT_INITIALISING = 0
 NMT_STOPPED = 4
@@ -48,7 +50,6 @@ ABORT_PARAM_INCOMPATIBLE = 0x06040043
 ABORT_VALUE_RANGE = 0x06090030
 ABORT_DEVICE_STATE = 0x08000022
 
-INVALID = 0x80000000
 
 
 @dataclass
@@ -380,22 +381,13 @@ class SimNode:
         self._pdo_dirty = False
 
     def _read_pdo(self, kind: str, comm: int) -> _Pdo | None:
-        cob = int(self.load(comm, 1))
-        if cob & INVALID:
+        p = read_pdo_params(self.load, lambda i, s: odm.variable(self.od, i, s) is not None,
+                            comm, kind == "tpdo")
+        if p is None:
             return None
-        n = int(self.load(comm + 0x200, 0))
-        mapping = []
-        for i in range(1, n + 1):
-            v = int(self.load(comm + 0x200, i))
-            mapping.append((v >> 16, (v >> 8) & 0xFF, v & 0xFF))
-        if not mapping:
-            return None
-        has = lambda s: odm.variable(self.od, comm, s) is not None
-        inhibit = int(self.load(comm, 3)) * 100_000 if kind == "tpdo" and has(3) else 0
-        event = int(self.load(comm, 5)) * 1_000_000 if kind == "tpdo" and has(5) else 0
-        return _Pdo(kind, comm - (0x1400 if kind == "rpdo" else 0x1800) + 1, cob & 0x7FF,
-                    int(self.load(comm, 2)), inhibit, event, mapping,
-                    objects=frozenset((i, s) for i, s, _ in mapping))
+        return _Pdo(kind, comm - (0x1400 if kind == "rpdo" else 0x1800) + 1, p.cob_id,
+                    p.transmission, p.inhibit_ns, p.event_ns, p.mapping,
+                    objects=frozenset((i, s) for i, s, _ in p.mapping))
 
     def _on_rpdo(self, can_id: int, data: bytes, ts: Any) -> None:
         if not self.powered or self.nmt_state != NMT_OPERATIONAL:
