@@ -441,3 +441,23 @@ class TrackerEngine:
             return pickle.loads(data)
         except Exception as exc:
             return {"format": None, "error": f"cannot deserialize: {exc!r}"}
+
+
+class EngineStateMixin:
+    """FMU state of a slave class whose ``self._engine`` is a :class:`TrackerEngine`: get/set
+    and (de)serialisation delegate to the engine (all internal state).  Shared by the FMI 2
+    and FMI 3 slaves; list it before the pythonfmu base class."""
+
+    def _get_fmu_state(self) -> dict:
+        return self._engine.get_state()
+
+    def _set_fmu_state(self, state: dict) -> None:
+        self._engine.set_state(state)
+
+    @staticmethod
+    def _fmu_state_to_bytes(state: dict) -> bytes:
+        return TrackerEngine.state_to_bytes(state)
+
+    @staticmethod
+    def _fmu_state_from_bytes(state: bytes) -> dict:
+        return TrackerEngine.state_from_bytes(state)

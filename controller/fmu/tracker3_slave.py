@@ -16,7 +16,8 @@ from pythonfmu3 import (Boolean, DefaultExperiment, Float64, Fmi3Causality, Fmi3
                         Fmi3Status, Fmi3StepResult, Fmi3Variability, Int32, Unit)
 
 import controller
-from controller.fmu.engine import DISCARD, OK, UNITS, VARIABLES, TrackerEngine
+from controller.fmu.engine import (DISCARD, OK, UNITS, VARIABLES, EngineStateMixin,
+                                   TrackerEngine)
 
 _TYPES = {"Real": Float64, "Integer": Int32, "Boolean": Boolean}
 VR_TIME = len(VARIABLES)
@@ -24,7 +25,7 @@ _RESULTS = {OK: Fmi3StepResult(), DISCARD: Fmi3StepResult(status=Fmi3Status.disc
 _ERROR = Fmi3StepResult(status=Fmi3Status.error)
 
 
-class CanTracker3(Fmi3Slave):
+class CanTracker3(EngineStateMixin, Fmi3Slave):
     """Conveyor tracking (softMC moving-frame synchronisation) of one robot on one master."""
 
     author = "cantrack"
@@ -126,18 +127,3 @@ class CanTracker3(Fmi3Slave):
         v = self._v
         for vr, value in zip(vrs, values):
             v[vr] = bool(value)
-
-    # -- FMU state (all internal state, see engine) -----------------------------------------
-    def _get_fmu_state(self) -> dict:
-        return self._engine.get_state()
-
-    def _set_fmu_state(self, state: dict) -> None:
-        self._engine.set_state(state)
-
-    @staticmethod
-    def _fmu_state_to_bytes(state: dict) -> bytes:
-        return TrackerEngine.state_to_bytes(state)
-
-    @staticmethod
-    def _fmu_state_from_bytes(state: bytes) -> dict:
-        return TrackerEngine.state_from_bytes(state)

@@ -29,6 +29,7 @@ from pythonfmu.enums import Fmi2Status
 
 import controller
 from controller.fmu.engine import (
+    EngineStateMixin,
     INITIAL_DEPENDENCIES,
     OK,
     UNITS,
@@ -43,7 +44,7 @@ __all__ = ["VARIABLES", "VR", "CanTracker", "tracker_params"]
 _TYPES = {"Real": Real, "Integer": Integer, "Boolean": Boolean}
 
 
-class CanTracker(Fmi2Slave):
+class CanTracker(EngineStateMixin, Fmi2Slave):
     """Conveyor tracking (softMC moving-frame synchronisation) of one robot on one master."""
 
     author = "cantrack"
@@ -159,18 +160,3 @@ class CanTracker(Fmi2Slave):
         v = self._v
         for vr, value in zip(vrs, values):
             v[vr] = bool(value)
-
-    # -- FMU state (all internal state, see engine) -----------------------------------------
-    def _get_fmu_state(self) -> dict:
-        return self._engine.get_state()
-
-    def _set_fmu_state(self, state: dict) -> None:
-        self._engine.set_state(state)
-
-    @staticmethod
-    def _fmu_state_to_bytes(state: dict) -> bytes:
-        return TrackerEngine.state_to_bytes(state)
-
-    @staticmethod
-    def _fmu_state_from_bytes(state: bytes) -> dict:
-        return TrackerEngine.state_from_bytes(state)
