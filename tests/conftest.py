@@ -1,8 +1,25 @@
 """Shared test configuration: a derandomised hypothesis profile."""
 
+import pytest
 from hypothesis import settings
 
 pytest_plugins = ["controller.testing.pytest_plugin"]
 
 settings.register_profile("ci", derandomize=True, deadline=None, print_blob=True)
 settings.load_profile("ci")
+
+
+@pytest.fixture
+def stepped_controller():
+    """``stepped_controller(cfg, **kw)`` -> (SimWorld, Controller) on a stepped virtual bus
+    (``controller.canopen.testing.stepped``); the worlds are closed after the test."""
+    from controller.canopen.testing import stepped
+    worlds = []
+
+    def _make(cfg, **kw):
+        world, ctl = stepped(cfg, **kw)
+        worlds.append(world)
+        return world, ctl
+    yield _make
+    for w in worlds:
+        w.close()

@@ -13,26 +13,13 @@ from controller.canopen.concise import concise_configuration
 from controller.canopen.config import load_bus_config
 from controller.canopen.devices.base import NMT_OPERATIONAL
 from controller.canopen.sdo import SdoTimeoutError
-from controller.canopen.testing import bus_yml, bus_yml_text, load, stepped
+from controller.canopen.testing import bus_yml, bus_yml_text, load
 
 
 @pytest.fixture
 def cfg(tmp_path):
     return load(tmp_path)
 
-
-@pytest.fixture
-def make():
-    """stepped(cfg, ...) whose worlds are closed after the test."""
-    worlds = []
-
-    def _make(cfg, **kw):
-        world, ctl = stepped(cfg, **kw)
-        worlds.append(world)
-        return world, ctl
-    yield _make
-    for w in worlds:
-        w.close()
 
 
 def test_interpolation_period():
@@ -44,8 +31,8 @@ def test_interpolation_period():
         interpolation_period(2001 * 1000)
 
 
-def test_boot_configures_every_node(make, cfg):
-    world, ctl = make(cfg)
+def test_boot_configures_every_node(stepped_controller, cfg):
+    world, ctl = stepped_controller(cfg)
     result = ctl.boot()
     concise = concise_configuration(cfg)
     for name, nb in result.nodes.items():
@@ -67,19 +54,19 @@ def test_boot_configures_every_node(make, cfg):
     assert [e.kind for e in ctl.events] == ["boot"] * 3
 
 
-def test_missing_node(make, cfg):
-    world, ctl = make(cfg, present=["encoder", "x"])
+def test_missing_node(stepped_controller, cfg):
+    world, ctl = stepped_controller(cfg, present=["encoder", "x"])
     with pytest.raises(BootError, match=r"^node 12 \(y\): no boot-up message within 0.1 s "
                                         r"after NMT reset node"):
         ctl.boot()
 
 
-def test_missing_optional_node_is_left_out(make, tmp_path):
+def test_missing_optional_node_is_left_out(stepped_controller, tmp_path):
     text = bus_yml_text(("x", "y", "z"))
     text = "\n".join(line for line in text.splitlines()
                      if not line.startswith("      z: {node: z"))
     cfg = load_bus_config(bus_yml(tmp_path, text=text))
-    world, ctl = make(cfg, present=["encoder", "x", "y"])
+    world, ctl = stepped_controller(cfg, present=["encoder", "x", "y"])
     result = ctl.boot()
     assert result.missing == ["z"]
     assert any(e.kind == "missing" and "node 13 (z)" in e.source for e in ctl.events)
@@ -91,25 +78,25 @@ def test_missing_optional_node_is_left_out(make, tmp_path):
     ("vendor", 1, 0x00000123, "vendor-ID 1018h:01 is 00000123h"),
     ("revision", 3, 0x00020000, "revision number 1018h:03 is 00020000h"),
 ])
-def test_wrong_identity(make, cfg, field, sub, value, text):
-    world, ctl = make(cfg)
+def test_wrong_identity(stepped_controller, cfg, field, sub, value, text):
+    world, ctl = stepped_controller(cfg)
     world.device("x").set_identity(**{field: value})
     with pytest.raises(BootError, match=r"node 11 \(x\): wrong identity: ") as info:
         ctl.boot()
     assert text in str(info.value)
 
 
-def test_serial_number_from_bus_yml(make, tmp_path):
+def test_serial_number_from_bus_yml(stepped_controller, tmp_path):
     text = bus_yml_text().replace("  node_id: 12\n", "  node_id: 12\n  serial_number: 77\n")
     cfg = load_bus_config(bus_yml(tmp_path, text=text))
-    world, ctl = make(cfg)
+    world, ctl = stepped_controller(cfg)
     with pytest.raises(BootError, match=r"node 12 \(y\): wrong identity: serial number "
                                         r"1018h:04 is 00000000h, bus.yml says 0000004Dh"):
         ctl.boot()
 
 
-def test_sdo_abort_names_node_object_and_code(make, cfg):
-    world, ctl = make(cfg)
+def test_sdo_abort_names_node_object_and_code(stepped_controller, cfg):
+    world, ctl = stepped_controller(cfg)
     world.device("y").reject_sdo(0x60C2, 2, 0x06090030)
     with pytest.raises(BootError) as info:
         ctl.boot()
@@ -119,16 +106,16 @@ def test_sdo_abort_names_node_object_and_code(make, cfg):
     assert "value -3 from cantrack" in msg
 
 
-def test_sdo_abort_of_a_bus_yml_write(make, cfg):
-    world, ctl = make(cfg)
+def test_sdo_abort_of_a_bus_yml_write(stepped_controller, cfg):
+    world, ctl = stepped_controller(cfg)
     world.device("x").reject_sdo(0x6065, 0, 0x06010002)
     with pytest.raises(BootError, match=r"node 11 \(x\): SDO abort 06010002h \(Attempt to write "
                                         r"a read only object\) writing 6065h:00 .*from bus.yml"):
         ctl.boot()
 
 
-def test_sdo_timeout(make, cfg):
-    world, ctl = make(cfg)
+def test_sdo_timeout(stepped_controller, cfg):
+    world, ctl = stepped_controller(cfg)
     world.device("encoder").mute_sdo(True)  # boots, but its SDO server does not answer
     with pytest.raises(SdoTimeoutError, match=r"node 10 \(encoder\): no SDO response within "
                                               r"0.05 s \(2 attempts\) reading 1000h:00"):

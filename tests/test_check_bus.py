@@ -15,21 +15,9 @@ from controller.canopen.checkbus import check_bus, parse_scan
 from controller.canopen.clock import RealtimeClock
 from controller.canopen.config import load_bus_config
 from controller.canopen.devices.rack import DeviceRack
-from controller.canopen.testing import bus_yml, load, stepped
+from controller.canopen.testing import bus_yml, load
 from controller.canopen.transport import DeviceThread, virtual_bus
 
-
-@pytest.fixture
-def make():
-    worlds = []
-
-    def _make(cfg, **kw):
-        world, ctl = stepped(cfg, **kw)
-        worlds.append(world)
-        return world, ctl
-    yield _make
-    for w in worlds:
-        w.close()
 
 
 @pytest.fixture
@@ -41,8 +29,8 @@ def _diffs(result, node_id):
     return [(d.what, d.obj) for d in result.node(node_id).differences]
 
 
-def test_configured_bus_matches(make, cfg):
-    world, ctl = make(cfg)
+def test_configured_bus_matches(stepped_controller, cfg):
+    world, ctl = stepped_controller(cfg)
     ctl.boot()
     r = check_bus(cfg, world.transport)
     assert r.ok, r.format()
@@ -53,9 +41,9 @@ def test_configured_bus_matches(make, cfg):
     assert r.format().endswith("all nodes match the configuration")
 
 
-def test_unconfigured_bus_shows_what_the_boot_changes(make, cfg):
+def test_unconfigured_bus_shows_what_the_boot_changes(stepped_controller, cfg):
     """Power-on values: the encoder's TPDO1 maps two objects (EDS), the bus.yml one."""
-    world, _ = make(cfg)
+    world, _ = stepped_controller(cfg)
     r = check_bus(cfg, world.transport)
     assert not r.ok
     assert _diffs(r, 10) == [("pdo", "1A00h:00")]
@@ -63,8 +51,8 @@ def test_unconfigured_bus_shows_what_the_boot_changes(make, cfg):
     assert r.node(10).nmt_state == 127  # pre-operational
 
 
-def test_wrong_identity(make, cfg):
-    world, ctl = make(cfg)
+def test_wrong_identity(stepped_controller, cfg):
+    world, ctl = stepped_controller(cfg)
     ctl.boot()
     world.device("x").set_identity(product=0x1234)
     r = check_bus(cfg, world.transport)
@@ -77,8 +65,8 @@ def test_wrong_identity(make, cfg):
     assert "1 of 3 node(s) differ" in text
 
 
-def test_missing_node(make, cfg):
-    world, _ = make(cfg, present=["encoder", "x"])
+def test_missing_node(stepped_controller, cfg):
+    world, _ = stepped_controller(cfg, present=["encoder", "x"])
     r = check_bus(cfg, world.transport, pdos=False)
     y = r.node(12)
     assert not y.answered and y.nmt_state is None
@@ -87,8 +75,8 @@ def test_missing_node(make, cfg):
     assert "node 12 (y): MISSING: no SDO answer (no heartbeat)" in r.format()
 
 
-def test_wrong_pdo_mapping_and_cob_id(make, cfg):
-    world, ctl = make(cfg)
+def test_wrong_pdo_mapping_and_cob_id(stepped_controller, cfg):
+    world, ctl = stepped_controller(cfg)
     ctl.boot()
     y = world.device("y")
     # what a stale configuration would leave: TPDO1 disabled, another object mapped
@@ -98,14 +86,14 @@ def test_wrong_pdo_mapping_and_cob_id(make, cfg):
     assert "TPDO1 COB-ID 0000018Ch (enabled)" in r.format()
 
 
-def test_scan_reports_an_unexpected_node(make, tmp_path):
+def test_scan_reports_an_unexpected_node(stepped_controller, tmp_path):
     """A node answering on an ID the configuration does not have (here: x's device on a
     bus whose configuration lacks x) is reported with its identity."""
     (tmp_path / "all").mkdir()
     (tmp_path / "less").mkdir()
     cfg_all = load(tmp_path / "all")                   # encoder 10, x 11, y 12
     cfg_less = load(tmp_path / "less", axes=("y",))    # encoder 10, y 11
-    world, _ = make(cfg_all, present=["encoder", "x", "y"])
+    world, _ = stepped_controller(cfg_all, present=["encoder", "x", "y"])
     r = check_bus(cfg_less, world.transport, scan=parse_scan("10-13"), pdos=False)
     ids = {n.node_id: n for n in r.nodes}
     assert set(ids) == {10, 11, 12}
