@@ -134,16 +134,20 @@ def test_controller_against_sim_devices_in_real_time(tmp_path):
     def devices():
         try:
             cmd_sim.main([str(yml), "-i", "virtual", "-c", channel, "-q", "--duration", "3",
-                          "--inject", "0.0:encoder:noise:1"])
+                          "--inject", "0.0:encoder:noise:1", "--ready-file", str(ready)])
         except BaseException as exc:  # pragma: no cover - reported below
             errors.append(exc)
         finally:
             done.set()
 
+    ready = tmp_path / "ready.json"
     th = threading.Thread(target=devices, daemon=True)
     th.start()
     import time
-    time.sleep(0.2)  # let the simulated devices open their bus (real time)
+    t_end = time.monotonic() + 30  # the simulated devices have opened their bus and booted
+    while not ready.is_file() and not done.is_set() and time.monotonic() < t_end:
+        time.sleep(0.01)
+    assert ready.is_file() and not errors, errors
     cfg = load_bus_config(yml)
     transport = RealtimeTransport(virtual_bus(channel))
     ctl = Controller(cfg, transport, ConveyorFollow(5, None, (420.0, 30.0, 0.0),

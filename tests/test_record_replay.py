@@ -3,6 +3,7 @@ recorded encoder stream replayed into the controller in stepped time, setpoints 
 
 from __future__ import annotations
 
+import json
 import threading
 import time
 from pathlib import Path
@@ -130,10 +131,16 @@ def test_record_command(tmp_path, ext):
     out = tmp_path / f"rec.{ext}"
     chan = f"rec-test-{ext}"
     rc: list = []
+    ready = tmp_path / "ready.json"
     t = threading.Thread(target=lambda: rc.append(cmd_record.main(
-        ["-i", "virtual", "-c", chan, "-o", str(out), "--duration", "1.0", "-q"])))
+        ["-i", "virtual", "-c", chan, "-o", str(out), "--duration", "2.0", "-q",
+         "--ready-file", str(ready)])))
     t.start()
-    time.sleep(0.3)
+    t_end = time.monotonic() + 30
+    while not ready.is_file() and t.is_alive() and time.monotonic() < t_end:
+        time.sleep(0.01)
+    assert ready.is_file(), "record never became ready"
+    assert json.loads(ready.read_text())["output"] == str(out)
     sender = can.Bus(interface="virtual", channel=chan)
     try:
         for i in range(20):

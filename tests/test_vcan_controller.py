@@ -255,13 +255,17 @@ def test_pdo_order_per_sync(session):
     cycles = [tuple(c for c in cyc if c in cyclic)  # (TPDO3 0x38B/0x38C: event-driven)
               for cyc in pdo_order_per_sync(session.frames)]
     _running_window(session)  # (the report has the cycle start and the loss)
-    # from the cycle start until y is killed (its TPDO missing); the last one may be cut
-    end = next(k for k in range(1, len(cycles)) if 0x18C not in cycles[k])
-    window = cycles[1:end - 1]
-    assert len(window) >= KILL_AT_SYNC - 5, (len(window), cycles[:5])
+    # The orchestrator kills y after it has seen the KILL_AT_SYNC-th SYNC (cycles[69]): every
+    # cycle before that one is whole.  The first is left out (the devices start their PDOs
+    # there).  Under emulation a device process may answer one SYNC late now and then (its
+    # TPDO lands in the next cycle): that costs two inexact cycles, not the window.
+    assert len(cycles) >= KILL_AT_SYNC, len(cycles)
+    window = cycles[1:KILL_AT_SYNC - 1]
+    present = {cob: sum(1 for c in window if cob in c) for cob in cyclic}
+    assert all(n >= 0.9 * len(window) for n in present.values()), (present, window)
     exact = sum(1 for c in window if sorted(c) == sorted(cyclic)
                 and c.index(0x18A) < c.index(0x18B) and c[-2:] == (0x20B, 0x20C))
-    assert exact >= 0.9 * len(window), f"{exact} of {len(window)}: {window}"
+    assert exact >= 0.85 * len(window), f"{exact} of {len(window)}: {window}"
     sent = session.report["sent_pdos_per_sync"]
     assert all(c == [0x20B, 0x20C] for c in sent), session.report["sent_pdo_sequences"]
 
@@ -347,11 +351,12 @@ def test_run_sigterm_during_boot_is_clean(tmp_path):
     """No devices: the controller waits for boot-ups (10 s); SIGTERM ends it at once, exit 0,
     with a report."""
     report = tmp_path / "run.json"
+    ready = tmp_path / "ready.json"
     p = _spawn(["run", str(CONFIG), "-i", "virtual", "-c", "t2", "-q", "--report",
-                str(report)], tmp_path, "run")
+                str(report), "--ready-file", str(ready)], tmp_path, "run")
     try:
-        time.sleep(2.0)
-        assert p.poll() is None, (tmp_path / "run.out").read_text()
+        _wait_file(ready, [p], 60)
+        assert json.loads(ready.read_text())["nodes"] == {"encoder": ENCODER, "x": X, "y": Y}
         p.send_signal(signal.SIGTERM)
         assert p.wait(timeout=10) == 0, (tmp_path / "run.out").read_text()
         rep = json.loads(report.read_text())
@@ -373,6 +378,20 @@ cfg = load_bus_config(sys.argv[1])
 clock = RealtimeClock()
 rack = DeviceRack.from_config(cfg, virtual_bus("t3"), clock)
 th = DeviceThread(rack, clock).start()
+
+
+def watch(path, n_syncs):
+    # the test's cue: this many SYNCs seen on the bus (not a wall-clock guess)
+    bus, seen = virtual_bus("t3"), 0
+    while seen < n_syncs:
+        msg = bus.recv(1.0)
+        seen += msg is not None and msg.arbitration_id == 0x80
+    bus.shutdown()
+    open(path, "w").write(str(seen))
+
+
+import threading
+threading.Thread(target=watch, args=(sys.argv[3], 30), daemon=True).start()
 rc = cmd_run.main([sys.argv[1], "-i", "virtual", "-c", "t3", "-q", "--engage-at", "0.5",
                    "--report", sys.argv[2]])
 th.stop()
@@ -385,11 +404,11 @@ def test_run_sigterm_while_tracking_disables_and_reports(tmp_path):
     drives are disabled (phase stopped, no reaction), the report written, exit code 0."""
     report = tmp_path / "run.json"
     log = open(tmp_path / "run.out", "wb")  # noqa: SIM115
-    p = subprocess.Popen([sys.executable, "-c", _IN_ONE_PROCESS, str(CONFIG), str(report)],
-                         stdout=log, stderr=subprocess.STDOUT, cwd=ROOT)
+    cue = tmp_path / "30-syncs"
+    p = subprocess.Popen([sys.executable, "-c", _IN_ONE_PROCESS, str(CONFIG), str(report),
+                          str(cue)], stdout=log, stderr=subprocess.STDOUT, cwd=ROOT)
     try:
-        time.sleep(4.0)
-        assert p.poll() is None, (tmp_path / "run.out").read_text()
+        _wait_file(cue, [p], 120)
         p.send_signal(signal.SIGTERM)
         assert p.wait(timeout=10) == 0, (tmp_path / "run.out").read_text()
         rep = json.loads(report.read_text())

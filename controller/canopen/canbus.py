@@ -10,7 +10,10 @@ variables CAN_INTERFACE, CAN_CHANNEL, CAN_BITRATE).  Without a bitrate the bus.y
 from __future__ import annotations
 
 import argparse
+import json
+import os
 import signal
+from pathlib import Path
 from typing import Any
 
 import can
@@ -65,3 +68,13 @@ def set_sigterm(handler):
         return signal.signal(signal.SIGTERM, handler)
     except ValueError:  # not the main thread
         return None
+
+
+def write_ready_file(path: str, info: dict[str, Any]) -> None:
+    """Atomically write a readiness file (JSON; ``pid`` added) for scripts that wait on it.
+
+    Written to a temporary name and renamed, so a waiting script never reads half a file.
+    """
+    tmp = Path(f"{path}.tmp{os.getpid()}")
+    tmp.write_text(json.dumps({"pid": os.getpid(), **info}))
+    os.replace(tmp, path)

@@ -2,7 +2,8 @@
 
 The format follows the extension (``can.Logger``): candump ``.log``, Vector ``.asc``,
 ``.blf``, ``.csv``, ``.trc``, ...  Records until ``--duration``, Ctrl-C or SIGTERM (then the
-file is closed properly and the exit code is 0).  Bus flags as ``cantrack run``
+file is closed properly and the exit code is 0).  ``--ready-file PATH`` is written once
+the bus is open, for scripts that start sending after it.  Bus flags as ``cantrack run``
 (-i/-c/-b, --can-config, CAN_* environment variables); a bus.yml may be given for its bitrate.
 """
 
@@ -25,6 +26,9 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", required=True,
                    help="log file: .log (candump), .asc, .blf, .csv, .trc, ...")
     p.add_argument("--duration", type=float, help="stop after this many seconds")
+    p.add_argument("--ready-file", metavar="PATH",
+                   help="write this file (JSON: pid, output) once the bus is open and "
+                        "recording")
     p.add_argument("-q", "--quiet", action="store_true")
     return p
 
@@ -40,6 +44,8 @@ def main(argv: list[str] | None = None, prog: str = "cantrack record") -> int:
 
     old = canbus.set_sigterm(on_term)
     logger = can.Logger(args.output)
+    if args.ready_file:
+        canbus.write_ready_file(args.ready_file, {"output": str(args.output)})
     count = 0
     t_end = None if args.duration is None else time.monotonic() + args.duration
     try:

@@ -12,7 +12,8 @@ producer takes over.  Heartbeat supervision of the slaves counts from the start 
 (heartbeats of the boot are not timed).
 
 SIGTERM and Ctrl-C stop the run like the end of ``--duration``: disable the drives, write the
-report, exit.  Exit codes: 0 = normal end; 3 = a supervision reaction happened (quick stop of
+report, exit (``--ready-file PATH`` tells a script when that holds: it is written once the
+bus is open and the boot starts).  Exit codes: 0 = normal end; 3 = a supervision reaction happened (quick stop of
 the drives: heartbeat lost, drive fault, EMCY, following error, ...); 2 = an error (bad
 configuration, the boot failed; one line on stderr).
 
@@ -54,6 +55,9 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
     p.add_argument("--mode", choices=("absolute", "relative"), default="relative")
     p.add_argument("--telemetry", metavar="FILE", help="write JSON-lines telemetry")
     p.add_argument("--report", metavar="FILE", help="write a JSON run report")
+    p.add_argument("--ready-file", metavar="PATH",
+                   help="write this file (JSON: pid, node-IDs) when the bus is open and the "
+                        "boot starts (SIGTERM is handled from then on)")
     p.add_argument("-q", "--quiet", action="store_true", help="no live status line")
     return p
 
@@ -199,6 +203,10 @@ def main(argv: list[str] | None = None, prog: str = "cantrack run") -> int:
         terminated[0] = True
 
     old_term = canbus.set_sigterm(on_term)
+    if args.ready_file:
+        canbus.write_ready_file(args.ready_file, {"master": cfg.master.node_id,
+                                                  "nodes": {name: sl.node_id
+                                                            for name, sl in cfg.slaves.items()}})
 
     def on_cycle(ctl: Controller, rec) -> None:
         key = (rec.phase, rec.state)

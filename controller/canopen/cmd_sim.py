@@ -15,11 +15,8 @@ SIGTERM (and SIGINT) stop the devices cleanly with exit code 0.
 from __future__ import annotations
 
 import argparse
-import json
-import os
 import sys
 import time
-from pathlib import Path
 
 from ..errors import ConfigError
 from . import canbus
@@ -93,10 +90,7 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
 
 def write_ready_file(path: str, rack: DeviceRack) -> None:
     """Atomically write the readiness file (pid, device names, node-IDs)."""
-    info = {"pid": os.getpid(), "devices": {n: d.node_id for n, d in rack.devices.items()}}
-    tmp = Path(f"{path}.tmp{os.getpid()}")
-    tmp.write_text(json.dumps(info))
-    os.replace(tmp, path)
+    canbus.write_ready_file(path, {"devices": {n: d.node_id for n, d in rack.devices.items()}})
 
 
 def describe(rack: DeviceRack) -> str:
