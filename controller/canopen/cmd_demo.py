@@ -18,6 +18,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from ..errors import ConfigError
+from ..resources import data_path
 from .config import load_bus_config
 from .cycle import Controller
 from .demo import PhotoEye, PickPlace
@@ -25,7 +26,7 @@ from .plc_node import PlcNode
 from .report import plot_run, status_line, summary_table, write_telemetry
 from .world import SimWorld
 
-DEFAULT_CONFIG = Path(__file__).resolve().parents[2] / "examples" / "bus" / "demo.yml"
+DEFAULT_CONFIG = data_path("examples", "bus", "demo.yml")
 
 
 def build_parser(prog: str) -> argparse.ArgumentParser:

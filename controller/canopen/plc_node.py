@@ -45,6 +45,7 @@ from typing import TYPE_CHECKING, Any
 
 from canopen.objectdictionary import REAL32, REAL64, ODVariable
 
+from ..resources import data_path
 from ..tracking import Mode, TrackState
 from . import od as odm
 from .concise import INVALID
@@ -53,7 +54,7 @@ from .pdo import read_pdo_params
 if TYPE_CHECKING:
     from .cycle import Controller, CycleRecord
 
-EDS = Path(__file__).resolve().parents[2] / "eds" / "cantrack-controller.eds"
+EDS = data_path("eds", "cantrack-controller.eds")
 
 ABORT_TOGGLE = 0x05030000
 ABORT_COMMAND = 0x05040001

@@ -11,12 +11,13 @@ from __future__ import annotations
 from collections.abc import Iterable
 from pathlib import Path
 
+from ..resources import data_path
 from .app import Application
 from .config import BusConfig, load_bus_config
 from .cycle import Controller
 from .world import SimWorld
 
-EDS_DIR = Path(__file__).resolve().parents[2] / "eds"
+EDS_DIR = data_path("eds")
 
 _DRIVE = """\
 {name}:

@@ -41,9 +41,10 @@ import threading
 import time
 from pathlib import Path
 
+from ..resources import data_path
 from .candump import CandumpCapture
 
-EDS_DIR = Path(__file__).resolve().parents[2] / "eds"
+EDS_DIR = data_path("eds")
 ENCODER_EDS = EDS_DIR / "cantrack-encoder.eds"
 SERVO_EDS = EDS_DIR / "cantrack-servo.eds"
 ENCODER_ID, SERVO_ID = 1, 2

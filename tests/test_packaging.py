@@ -1,0 +1,78 @@
+"""Packaging: the wheel carries the EDS files and example configurations, so that an installed
+(non-editable) cantrack finds its demo bus configuration and EDS files."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import zipfile
+from pathlib import Path
+
+import pytest
+from setuptools import find_packages
+
+from controller.resources import data_path
+
+ROOT = Path(__file__).resolve().parents[1]
+DATA_PACKAGES = {"controller.eds", "controller.examples", "controller.examples.bus"}
+
+
+def _setuptools_table() -> dict:
+    tomllib = pytest.importorskip("tomllib")
+    return tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]
+
+
+def test_the_package_list_names_every_code_package():
+    listed = set(_setuptools_table()["packages"])
+    assert listed - DATA_PACKAGES == set(find_packages(str(ROOT), include=["controller*"]))
+    assert DATA_PACKAGES <= listed
+
+
+def test_data_path_in_the_checkout():
+    assert data_path("eds", "cantrack-servo.eds") == ROOT / "eds" / "cantrack-servo.eds"
+    assert data_path("examples", "bus", "demo.yml").is_file()
+    with pytest.raises(FileNotFoundError, match="eds/nope.eds: not found"):
+        data_path("eds", "nope.eds")
+
+
+def test_the_wheel_runs_the_demo_configuration(tmp_path):
+    """Build the wheel, unpack it alone on sys.path and load the demo's bus.yml from it: the
+    EDS paths inside (../../eds/...) resolve within the installed package."""
+    r = subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation",
+                        "-q", "-w", str(tmp_path / "dist"), str(ROOT)],
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr[-2000:]
+    (wheel,) = (tmp_path / "dist").glob("cantrack-*.whl")
+    names = set(zipfile.ZipFile(wheel).namelist())
+    for eds in ROOT.glob("eds/*.eds"):
+        assert f"controller/eds/{eds.name}" in names
+    assert "controller/examples/bus/demo.yml" in names
+    site = tmp_path / "site"
+    zipfile.ZipFile(wheel).extractall(site)
+    code = ("import controller, sys\n"
+            "from controller.canopen.cmd_demo import DEFAULT_CONFIG\n"
+            "from controller.canopen.config import load_bus_config\n"
+            "cfg = load_bus_config(DEFAULT_CONFIG)\n"
+            "print(controller.__file__); print(DEFAULT_CONFIG); print(sorted(cfg.slaves))\n")
+    r = subprocess.run([sys.executable, "-S", "-c", code], capture_output=True, text=True,
+                       cwd=tmp_path, env={"PYTHONPATH": f"{site}:{_site_packages()}"},
+                       timeout=120)
+    assert r.returncode == 0, r.stderr[-2000:]
+    pkg, config, slaves = r.stdout.splitlines()
+    assert pkg.startswith(str(site)) and config.startswith(str(site)), r.stdout
+    assert slaves == str(sorted(load_bus_config_here().slaves))
+
+
+def load_bus_config_here():
+    from controller.canopen.config import load_bus_config
+
+    return load_bus_config(ROOT / "examples" / "bus" / "demo.yml")
+
+
+def _site_packages() -> str:
+    """The dependencies' folders (numpy, canopen, ...), without cantrack's editable finder."""
+    import canopen
+    import numpy
+
+    return ":".join(sorted({str(Path(m.__file__).resolve().parents[1])
+                            for m in (numpy, canopen)}))
