@@ -245,3 +245,50 @@ def test_disengage_with_a_reason_reports_it():
     tr.disengage(TrackError.MASTER_LOST)
     out = tr.update(m(200 * T))
     assert out.state == TrackState.DESYNCING and out.error == TrackError.MASTER_LOST
+
+
+def test_functional_change_2_sync_limits_start_at_the_robot_maxima():
+    """Conveyor page, Functional Changes item 2: the sync/de-sync parameters' defaults are set
+    by ConfigGroup "to the initial values of corresponding robot max properties (VMTran,
+    VMRot, ...)"; given values stay; without robot maxima the built-in defaults apply."""
+    from controller.tracking.types import DEFAULT_ROT, DEFAULT_TRANS
+
+    fast = Limits(5000.0, 50000.0, 1.0e6)
+    rot = Limits(720.0, 7200.0, 1.0e5)
+    p = TrackerParams(robot_max_trans=fast, robot_max_rot=rot)
+    assert (p.sync_trans, p.desync_trans, p.sync_rot, p.desync_rot) == (fast, fast, rot, rot)
+    assert p.effective().sync_trans == fast  # rates 100 %: a 5000 mm/s robot syncs at 5000
+    given = Limits(1000.0, 10000.0, 2.0e5)
+    q = TrackerParams(robot_max_trans=fast, sync_trans=given)
+    assert q.sync_trans == given and q.desync_trans == fast and q.sync_rot == DEFAULT_ROT
+    r = TrackerParams()
+    assert (r.sync_trans, r.desync_rot) == (DEFAULT_TRANS, DEFAULT_ROT)
+
+
+def test_functional_change_2_partial_limits_in_files_start_at_the_robot_maxima(tmp_path):
+    """The same rule in a scenario file and in bus.yml's .tracking.tracker: a partly given
+    sync_trans keeps the robot's maxima for the fields it leaves out."""
+    from controller.canopen.config import load_bus_config
+    from controller.canopen.testing import bus_yml_text
+    from controller.simulate.scenario import load_scenario
+
+    sc = load_scenario({
+        "engage": 0.02, "duration_s": 0.1,
+        "tracker": {"sample_time_s": 0.002, "planner": "softmc",
+                    "robot_max_trans": {"vel": 5000, "acc": 50000, "jerk": 1.0e6},
+                    "sync_trans": {"vel": 1000}},
+        "robot": {"position": [0.0, 0.0, 0.0]},
+        "master": {"segments": [{"duration_s": 0.1, "velocity": 300.0}]}})
+    assert sc.params.sync_trans == Limits(1000.0, 50000.0, 1.0e6)
+    assert sc.params.desync_trans == Limits(5000.0, 50000.0, 1.0e6)
+    text = bus_yml_text().replace(
+        "    planner: softmc\n",
+        "    planner: softmc\n"
+        "    robot_max_trans: {vel: 5000, acc: 50000, jerk: 1.0e6}\n"
+        "    sync_trans: {vel: 1000}\n")
+    path = tmp_path / "bus.yml"
+    path.write_text(text)
+    tp = load_bus_config(path).tracking.tracker
+    assert tp.sync_trans == Limits(1000.0, 50000.0, 1.0e6)
+    assert tp.desync_trans == Limits(5000.0, 50000.0, 1.0e6)
+    assert tp.sample_time_s == 0.002

@@ -45,7 +45,8 @@ scales).  Keys (``*`` = required)::
       tracker:                       # controller.tracking.TrackerParams fields except
         planner: optimal             #   sample_time_s (= master.sync_period)
         mode: absolute               # absolute | relative | 3 | 5
-        sync_trans: {vel: 2000, acc: 20000, jerk: 400000}   # and every other field
+        sync_trans: {vel: 2000, acc: 20000, jerk: 400000}   # and every other field; sync/
+                                     #   desync not given start at robot_max_* (item 2)
       window: {start: 200, end: 900} # pick window along the conveyor direction [mm]
       cycle:
         compute_at: 0.5              # the cycle computes at the latest this fraction of the
@@ -357,11 +358,16 @@ def _limits(s: Section, default: Limits | None) -> Limits:
 def _tracker(s: Section, sample_time_s: float) -> TrackerParams:
     base = TrackerParams(sample_time_s=sample_time_s)
     changes: dict[str, Any] = {}
-    for f in dataclasses.fields(TrackerParams):
-        key = f.name
+    # the robot's maxima first: the sync/de-sync values not given start at them (item 2)
+    keys = sorted((f.name for f in dataclasses.fields(TrackerParams)),
+                  key=lambda k: not k.startswith("robot_max_"))
+    for key in keys:
         if key == "sample_time_s" or not s.has(key):
             continue
         default = getattr(base, key)
+        if key in ("sync_trans", "desync_trans", "sync_rot", "desync_rot"):
+            robot = changes.get("robot_max_trans" if key.endswith("trans") else "robot_max_rot")
+            default = robot if robot is not None else default
         if key == "planner":
             changes[key] = s.str(key, choices=sorted(PLANNERS))
         elif key == "mode":
@@ -399,6 +405,6 @@ def _tracker(s: Section, sample_time_s: float) -> TrackerParams:
                                        "(master.sync_period)", at_value=False)
     s.finish()
     try:
-        return base.with_(**changes)
+        return TrackerParams(sample_time_s=sample_time_s, **changes)
     except ParameterError as exc:
         raise ConfigError(str(exc), file=s.file, line=s.line, key=s.path) from None

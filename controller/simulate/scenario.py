@@ -14,10 +14,10 @@ Keys (``*`` = required)::
       sample_time_s*: 0.002          # [1e-5...0.1] s
       planner*: softmc               # softmc | optimal (controller.tracking.PLANNERS)
       mode: absolute                 # 3 | 5 | absolute | relative
-      sync_trans: {vel: 2000, acc: 20000, jerk: 400000}   # Limits; missing fields keep the
-      desync_trans: {...}            #   TrackerParams default of that field
+      sync_trans: {vel: 2000, acc: 20000, jerk: 400000}   # Limits; missing (fields) start at
+      desync_trans: {...}            #   robot_max_trans (item 2, ConfigGroup), else 2000/2e4/4e5
       sync_rot: {vel: 360, acc: 3600, jerk: 72000}        # deg/s, deg/s^2, deg/s^3
-      desync_rot: {...}
+      desync_rot: {...}              #   (robot_max_rot, else 360/3600/72000)
       robot_max_trans: {vel: .., acc: .., jerk: ..}       # optional caps (all three fields)
       robot_max_rot: {...}
       rates: {vel: 100, acc: 100, dec: 100, jerk: 100}    # percent (VRATE, ARATE, DRATE, JRATE)
@@ -111,6 +111,7 @@ from typing import Any, Iterable
 from ..errors import ConfigError, ParameterError
 from ..yamlmarks import MarkedList, MarkedMap, load_marked
 from ..tracking import PLANNERS, Limits, Mode, MotionState, Rates, SoftMcOptions, TrackerParams
+from ..tracking.types import DEFAULT_ROT, DEFAULT_TRANS
 from .master import SegmentError, build_profile
 
 __all__ = ["CsvMaster", "EncoderSpec", "Scenario", "Segment", "SegmentMaster", "load_scenario",
@@ -379,8 +380,8 @@ class Scenario:
 _TOP_KEYS = ("name", "duration_s", "engage", "disengage", "tracker", "robot", "master",
              "estimator")
 _PARAM_FIELDS = {f.name: f for f in dataclasses.fields(TrackerParams)}
-_LIMIT_KEYS = ("sync_trans", "desync_trans", "sync_rot", "desync_rot", "robot_max_trans",
-               "robot_max_rot", "master_max_trans", "master_max_rot")
+_LIMIT_KEYS = ("robot_max_trans", "robot_max_rot", "sync_trans", "desync_trans", "sync_rot",
+               "desync_rot", "master_max_trans", "master_max_rot")
 _SOFTMC_KEYS = ("literal",) + tuple(f.name for f in dataclasses.fields(SoftMcOptions))
 _MODES = {"absolute": Mode.ABSOLUTE, "relative": Mode.RELATIVE}
 _PARAM_MSG = re.compile(r"^(?:limit |rate )?(\w+) \(=")
@@ -435,8 +436,12 @@ def _tracker_params(node: _Node) -> TrackerParams:
             kw["mode"] = Mode(mode)
         else:
             raise node.error("mode", f"must be 3 | 5 | absolute | relative, got {_describe(mode)}")
-    for key in _LIMIT_KEYS:
+    for key in _LIMIT_KEYS:  # robot_max_* first: the sync/de-sync values start at them
         default = _PARAM_FIELDS[key].default
+        if key in ("sync_trans", "desync_trans"):
+            default = kw.get("robot_max_trans", DEFAULT_TRANS)
+        elif key in ("sync_rot", "desync_rot"):
+            default = kw.get("robot_max_rot", DEFAULT_ROT)
         if node.has(key):
             kw[key] = _limits(node, key, default if isinstance(default, Limits) else None)
     rates = node.section("rates")

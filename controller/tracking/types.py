@@ -152,12 +152,21 @@ class SoftMcOptions:
                    take_the_middle=True, unit_consistent_thresholds=True)
 
 
+#: sync/de-sync limits when neither they nor the robot's maxima are given
+#: (mm/s, mm/s^2, mm/s^3 and deg/s, deg/s^2, deg/s^3)
+DEFAULT_TRANS = Limits(2000.0, 20000.0, 400000.0)
+DEFAULT_ROT = Limits(360.0, 3600.0, 72000.0)
+
+
 @dataclass(frozen=True, slots=True)
 class TrackerParams:
     """Everything that configures one tracker (one robot group on one moving frame).
 
     Sync/de-sync limits are the page's ``{Velocity|Acceleration|Jerk}{Sync|DeSync}{Tran|Rot}``;
-    the effective values are capped by the robot's maxima and rates (:meth:`effective`).
+    not given, they start at the robot's maxima (conveyor page, Functional Changes item 2:
+    "default values set by ConfigGroup ... to the initial values of corresponding robot max
+    properties"), or at :data:`DEFAULT_TRANS`/:data:`DEFAULT_ROT` without robot maxima.  The
+    effective values are capped by the robot's maxima and rates (:meth:`effective`).
     ``master_max_*`` are the moving frame's ``VelocityMaxTrans``/``AccelerationMaxTrans``/...
     (page defaults 1000 mm/s, 1000 mm/s^2, 100 deg/s, 100 deg/s^2): a master above them is an
     error that starts the de-sync.  Only velocity and acceleration are monitored; the jerk
@@ -167,10 +176,12 @@ class TrackerParams:
     sample_time_s: float = 0.001
     mode: Mode = Mode.ABSOLUTE
     planner: str = "optimal"
-    sync_trans: Limits = Limits(2000.0, 20000.0, 400000.0)
-    desync_trans: Limits = Limits(2000.0, 20000.0, 400000.0)
-    sync_rot: Limits = Limits(360.0, 3600.0, 72000.0)
-    desync_rot: Limits = Limits(360.0, 3600.0, 72000.0)
+    #: ``None`` (not given): the robot's maxima when given (item 2: ConfigGroup sets them to
+    #: VMTran/AMTran/JMTran, VMRot/...), else :data:`DEFAULT_TRANS` / :data:`DEFAULT_ROT`
+    sync_trans: Limits | None = None
+    desync_trans: Limits | None = None
+    sync_rot: Limits | None = None
+    desync_rot: Limits | None = None
     robot_max_trans: Limits | None = None
     robot_max_rot: Limits | None = None
     rates: Rates = Rates()
@@ -194,6 +205,13 @@ class TrackerParams:
     desync_from_current_acceleration: bool = True
 
     def __post_init__(self) -> None:
+        # item 2: the sync/de-sync values start at the robot's maxima (ConfigGroup)
+        for name, robot, builtin in (("sync_trans", self.robot_max_trans, DEFAULT_TRANS),
+                                     ("desync_trans", self.robot_max_trans, DEFAULT_TRANS),
+                                     ("sync_rot", self.robot_max_rot, DEFAULT_ROT),
+                                     ("desync_rot", self.robot_max_rot, DEFAULT_ROT)):
+            if getattr(self, name) is None:
+                object.__setattr__(self, name, robot if robot is not None else builtin)
         if not (math.isfinite(self.sample_time_s) and 1e-5 <= self.sample_time_s <= 0.1):
             raise ParameterError(
                 f"sample_time_s (={self.sample_time_s!r}) must be in [1e-05...0.1] s")
