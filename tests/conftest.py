@@ -3,7 +3,8 @@
 import pytest
 from hypothesis import settings
 
-pytest_plugins = ["controller.testing.pytest_plugin"]
+# (the hil/vcan plugin, controller.testing.pytest_plugin, is registered by the installed
+# package's pytest11 entry point)
 
 settings.register_profile("ci", derandomize=True, deadline=None, print_blob=True)
 settings.load_profile("ci")

@@ -76,3 +76,17 @@ def _site_packages() -> str:
 
     return ":".join(sorted({str(Path(m.__file__).resolve().parents[1])
                             for m in (numpy, canopen)}))
+
+
+def test_the_hil_options_are_known_before_the_paths(tmp_path):
+    """``pytest -m hil --bus-config rig.yml`` (no test path): the plugin comes from the
+    installed package's pytest11 entry point, so pytest knows --bus-config and does not take
+    rig.yml for a test path."""
+    rig = tmp_path / "rig.yml"
+    rig.write_text((ROOT / "examples" / "bus" / "vcan.yml").read_text())
+    r = subprocess.run([sys.executable, "-m", "pytest", "--collect-only", "-q", "-m", "hil",
+                        "-p", "no:cacheprovider", "--can-interface", "virtual",
+                        "--can-channel", "hil-options", "--bus-config", str(rig)],
+                       cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stdout[-2000:] + r.stderr[-2000:]
+    assert "test_hil_bus_traffic_is_clean_canopen" in r.stdout
