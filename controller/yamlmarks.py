@@ -21,6 +21,7 @@ import difflib
 import math
 import re
 from collections.abc import Callable, Iterable, Iterator
+from pathlib import Path
 from typing import Any
 
 import yaml
@@ -28,6 +29,19 @@ import yaml
 from .errors import ConfigError
 
 _MISSING: Any = object()
+
+
+def read_text(path: str | Path) -> str:
+    """A configuration or data file's text (UTF-8).  Text that is not UTF-8 is a ConfigError
+    naming the file, the line and the byte (e.g. a Latin-1 "µ" in a comment); OSError (no such
+    file, ...) propagates for the caller to report."""
+    data = Path(path).read_bytes()
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        line = data.count(b"\n", 0, exc.start) + 1
+        raise ConfigError(f"not UTF-8 text (byte {data[exc.start]:#04x}); save the file as "
+                          "UTF-8", file=str(path), line=line) from None
 
 
 class MarkedMap(dict):

@@ -129,6 +129,9 @@ BAD = {
     "object_missing": ("{index: 0x6004, sub_index: 0}", "{index: 0x6005, sub_index: 0}", 1,
                        _line_of("index: 0x6004"), "encoder.tpdo.1.mapping[0].index",
                        r"object 6005h:00 does not exist in cantrack-encoder.eds"),
+    "sub_index_missing": ("{index: 0x6004, sub_index: 0}", "{index: 0x6004, sub_index: 7}", 1,
+                          _line_of("index: 0x6004"), "encoder.tpdo.1.mapping[0].sub_index",
+                          r"object 6004h:07 does not exist in cantrack-encoder.eds"),
     "not_mappable": ("        - {index: 0x6064, sub_index: 0}",
                      "        - {index: 0x6065, sub_index: 0}", 1, _line_of("index: 0x6064"),
                      "x.tpdo.1.mapping[1].index", r"cannot be mapped into a PDO"),
@@ -244,3 +247,13 @@ def test_error_message_names_file_line_and_key(tmp_path):
         load_bus_config(path)
     assert str(info.value) == (f"{path}:{_line_of('sync_overflow')}, key 'master.sync_overlow':"
                                " unknown key (did you mean 'sync_overflow'?)")
+
+
+def test_a_file_that_is_not_utf8_names_file_and_line(tmp_path):
+    text = GOOD.replace("  sync_overflow: 16", "  sync_overflow: 16   # 16 \u00b5s").encode(
+        "utf-8").replace("\u00b5".encode("utf-8"), b"\xb5")
+    path = tmp_path / "latin1.yml"
+    path.write_bytes(text)
+    with pytest.raises(ConfigError, match=r"not UTF-8 text \(byte 0xb5\)") as info:
+        load_bus_config(path)
+    assert (info.value.file, info.value.line) == (str(path), _line_of("sync_overflow"))

@@ -163,3 +163,16 @@ def test_controller_against_sim_devices_in_real_time(tmp_path):
     assert ctl.failure is None
     assert len(ctl.timing.sync_interval) > 50  # real-time figures were taken
     assert max(r.state for r in ctl.trace) >= 1  # the tracker engaged
+
+
+def test_run_checks_the_bus_load_at_the_bitrate_given_on_the_command_line(tmp_path):
+    """-b (or CAN_BITRATE / python-can's config) is what the bus runs at: the load is computed
+    and refused there, before the bus is opened, not at master.baudrate."""
+    p = bus_yml(tmp_path)  # 1000 kbit/s, 2 ms: 32 % load
+    r = cli("run", p, "-q", "-i", "virtual", "-c", "bitrate-test", "-b", "125000")
+    assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr
+    assert "the bus runs at 125 kbit/s" in r.stderr
+    assert "at 125 kbit/s) is above 90 %" in r.stderr
+    r = cli("run", p, "-q", "-i", "virtual", "-c", "bitrate-test", env={"CAN_BITRATE": "12345"})
+    assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr
+    assert "bitrate 12345 bit/s" in r.stderr and "is not a CANopen bit rate" in r.stderr

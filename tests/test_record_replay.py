@@ -4,6 +4,7 @@ recorded encoder stream replayed into the controller in stepped time, setpoints 
 from __future__ import annotations
 
 import json
+import re
 import threading
 import time
 from pathlib import Path
@@ -18,6 +19,7 @@ from controller.canopen.cycle import Controller
 from controller.canopen.testing import bus_yml, load
 from controller.canopen.world import SimWorld
 from controller.cli import main as cli_main
+from controller.errors import CanError
 from controller.tracking import Mode
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -153,3 +155,23 @@ def test_record_command(tmp_path, ext):
     assert rc == [0]
     frames = rr.read_frames(out)
     assert frames == [(0x180 + i % 3, bytes([i, 1, 2])) for i in range(20)]
+
+
+@pytest.mark.parametrize("name,content,needle", [
+    ("session.yml", b"master: {}\n", 'unknown log format ".yml"'),
+    ("garbage.log", b"garbage line\n", "cannot read it as a CAN log"),
+    ("corrupt.blf", b"LOGG" + bytes(200), "cannot read it as a CAN log"),
+])
+def test_replay_of_a_file_that_is_no_can_log_is_a_clear_error(tmp_path, name, content, needle):
+    bad = tmp_path / name
+    bad.write_bytes(content)
+    rc = cli_main(["replay", str(ROOT / "examples" / "bus" / "demo.yml"), str(bad)])
+    assert rc == 2
+    with pytest.raises(CanError, match=re.escape(needle)) as info:
+        rr.read_frames(bad)
+    assert str(bad) in str(info.value) and ".blf" in str(info.value)
+
+
+def test_record_to_an_unknown_format_is_a_clear_error(tmp_path):
+    with pytest.raises(CanError, match=r'out\.foo: .*"\.foo".*formats: \.log \(candump\)'):
+        cmd_record.main(["-i", "virtual", "-c", "rec-bad-ext", "-o", str(tmp_path / "out.foo")])

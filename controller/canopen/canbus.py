@@ -10,7 +10,9 @@ variables CAN_INTERFACE, CAN_CHANNEL, CAN_BITRATE).  Without a bitrate the bus.y
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
+import logging
 import os
 import signal
 from pathlib import Path
@@ -20,6 +22,9 @@ import can
 import can.cli
 
 from ..errors import CanError
+from .config import BAUDRATES_KBIT
+
+log = logging.getLogger(__name__)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -51,7 +56,35 @@ def bus_config(args: argparse.Namespace, default_bitrate: int) -> dict[str, Any]
 
 
 def open_bus(args: argparse.Namespace, default_bitrate: int) -> can.BusABC:
-    config = bus_config(args, default_bitrate)
+    return open_configured(bus_config(args, default_bitrate))
+
+
+def bus_config_for(args: argparse.Namespace, cfg):
+    """The python-can bus settings for ``cfg`` (a BusConfig) -> (settings, cfg).
+
+    A bitrate from -b, CAN_BITRATE or python-can's config file that differs from
+    ``master.baudrate`` wins (it is what the bus runs at) and is logged; the returned cfg
+    carries it, so that the bus load is checked (warn > 60 %, refuse > 90 %) and reported at
+    the bitrate actually used.
+    """
+    config = bus_config(args, cfg.bitrate)
+    bitrate = int(config["bitrate"])
+    if bitrate != cfg.bitrate:
+        kbit = bitrate // 1000
+        if bitrate % 1000 or kbit not in BAUDRATES_KBIT:
+            raise CanError(f"bitrate {bitrate} bit/s (-b, CAN_BITRATE or the python-can "
+                           f"config) is not a CANopen bit rate: one of "
+                           f"{', '.join(str(b * 1000) for b in BAUDRATES_KBIT)}")
+        log.warning("%s: the bus runs at %d kbit/s (-b, CAN_BITRATE or the python-can "
+                    "config), not master.baudrate %d kbit/s: bus load computed at %d kbit/s",
+                    cfg.file, kbit, cfg.master.baudrate_kbit, kbit)
+        cfg = dataclasses.replace(cfg, master=dataclasses.replace(cfg.master,
+                                                                  baudrate_kbit=kbit))
+    return config, cfg
+
+
+def open_configured(config: dict[str, Any]) -> can.BusABC:
+    """``can.Bus(**config)``; a failure is a CanError naming interface and channel."""
     try:
         return can.Bus(**config)
     except Exception as exc:  # python-can raises assorted errors per backend

@@ -16,7 +16,9 @@ import time
 import can
 
 from . import canbus
+from ..errors import CanError
 from .config import load_bus_config
+from .record import LOG_FORMATS
 
 
 def build_parser(prog: str) -> argparse.ArgumentParser:
@@ -43,7 +45,12 @@ def main(argv: list[str] | None = None, prog: str = "cantrack record") -> int:
         stop[0] = True
 
     old = canbus.set_sigterm(on_term)
-    logger = can.Logger(args.output)
+    try:
+        logger = can.Logger(args.output)
+    except ValueError as exc:  # unknown extension
+        bus.shutdown()
+        canbus.set_sigterm(old)
+        raise CanError(f"{args.output}: {exc}; formats: {LOG_FORMATS}") from None
     if args.ready_file:
         canbus.write_ready_file(args.ready_file, {"output": str(args.output)})
     count = 0

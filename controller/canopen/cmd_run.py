@@ -37,9 +37,10 @@ from ..errors import CanError
 from ..tracking import Mode
 from . import canbus
 from .app import ConveyorFollow
+from .busload import check_bus_load
 from .config import load_bus_config
 from .cycle import Controller, Phase
-from .report import status_line, summary_table, timing_summary, write_telemetry
+from .report import json_safe, status_line, summary_table, timing_summary, write_telemetry
 from .transport import RealtimeTransport
 
 
@@ -170,7 +171,7 @@ def run_report(ctl: Controller, changes: list[dict], pdo_cycles: list[list[int]]
 
 def _write_json(path: str, data: dict) -> None:
     tmp = Path(f"{path}.tmp{os.getpid()}")
-    tmp.write_text(json.dumps(data, indent=1, default=str))
+    tmp.write_text(json.dumps(json_safe(data), indent=1, default=str, allow_nan=False))
     os.replace(tmp, path)
 
 
@@ -192,7 +193,9 @@ def main(argv: list[str] | None = None, prog: str = "cantrack run") -> int:
     app = ConveyorFollow(cyc(args.engage_at), cyc(args.disengage_at), args.offset,
                          Mode.ABSOLUTE if args.mode == "absolute" else Mode.RELATIVE,
                          end_cycle=cyc(args.duration))
-    bus = canbus.open_bus(args, cfg.bitrate)
+    settings, cfg = canbus.bus_config_for(args, cfg)
+    check_bus_load(cfg)  # before the bus is opened: a refusal leaves nothing to clean up
+    bus = canbus.open_configured(settings)
     last = [-1.0]
     changes: list[dict] = []
     prev: list = [None]
@@ -229,7 +232,8 @@ def main(argv: list[str] | None = None, prog: str = "cantrack run") -> int:
     transport = BootHeartbeat(inner, cfg.master.node_id, cfg.master.heartbeat_producer_ms,
                               lambda: terminated[0])
     wall0 = time.perf_counter()
-    ctl = Controller(cfg, transport, app, on_cycle=on_cycle, keep_trace=args.telemetry is not None)
+    ctl = Controller(cfg, transport, app, on_cycle=on_cycle, keep_trace=args.telemetry is not None,
+                     enforce_bus_load=False)  # (checked above, at the bus's bitrate)
     end, error, code = "duration", None, 0
     try:
         try:

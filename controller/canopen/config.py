@@ -40,7 +40,7 @@ from canopen.objectdictionary import ObjectDictionary
 
 from ..errors import ConfigError
 from . import od as odm
-from ..yamlmarks import Section, load_marked, suggest
+from ..yamlmarks import Section, load_marked, read_text, suggest
 
 __all__ = ["BusConfig", "MasterConfig", "Options", "PdoEntry", "PdoSetting", "SdoWrite",
            "SlaveConfig", "load_bus_config", "parse_bus_config"]
@@ -180,7 +180,7 @@ class BusConfig:
 def load_bus_config(path: str | Path, *, sections: bool = True) -> BusConfig:
     """Read and validate a bus.yml.  ``sections=False`` skips the dot sections."""
     p = Path(path)
-    text = p.read_text(encoding="utf-8")
+    text = read_text(p)
     return parse_bus_config(text, str(p), base_dir=p.parent, sections=sections)
 
 
@@ -380,7 +380,8 @@ def _pdo(s: Section, number: int, is_rpdo: bool, od: ObjectDictionary, eds: str)
             m.finish()
             var = odm.variable(od, index, sub)
             if var is None:
-                raise m.error("index", f"object {index:04X}h:{sub:02X} does not exist in {eds}")
+                key = "sub_index" if index in od else "index"  # the object is there, not the sub
+                raise m.error(key, f"object {index:04X}h:{sub:02X} does not exist in {eds}")
             if not var.pdo_mappable and not 0x0001 <= index <= 0x0007:
                 raise m.error("index", f"object {index:04X}h:{sub:02X} cannot be mapped "
                                        f"into a PDO ({eds}: PDOMapping=0)")

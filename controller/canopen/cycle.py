@@ -134,7 +134,8 @@ class Controller:
         self.events = events if events is not None else EventLog()
         self.keep_trace = keep_trace
         self.on_cycle = on_cycle
-        # enforce_bus_load=False only for a virtual bus, which has no bit time (benchmarks)
+        # enforce_bus_load=False: a virtual bus, which has no bit time (benchmarks), or a caller
+        # that checked the load itself (cantrack run: before opening the bus)
         self.bus_load: BusLoad = check_bus_load(cfg) if enforce_bus_load else bus_load(cfg)
         self.period_ns = cfg.period_ns
         self.compute_ns = int(self.tc.compute_at * self.period_ns)

@@ -25,6 +25,8 @@ from typing import TYPE_CHECKING
 
 import can
 
+from ..errors import CanError
+
 from .pdo import PdoCodec, effective_pdos
 
 if TYPE_CHECKING:
@@ -37,13 +39,28 @@ SYNC_COB = 0x80
 Frame = tuple[int, bytes]  # (COB-ID, data)
 
 
+#: the log formats read and written (python-can's ``LogReader``/``Logger`` by extension)
+LOG_FORMATS = ".log (candump), .asc, .blf, .csv, .trc"
+
+
 def read_frames(path: str | Path) -> list[Frame]:
-    """The standard data frames of a python-can log (any format ``can.LogReader`` reads)."""
-    out = []
-    for msg in can.LogReader(str(path)):
-        if msg.is_error_frame or msg.is_remote_frame or msg.is_extended_id:
-            continue
-        out.append((msg.arbitration_id, bytes(msg.data)))
+    """The standard data frames of a python-can log (any format ``can.LogReader`` reads).
+
+    A file python-can cannot read (unknown extension, corrupt or not a log) is a CanError
+    naming the file and the frame it stopped at; OSError (no such file) propagates.
+    """
+    out: list[Frame] = []
+    try:
+        for msg in can.LogReader(str(path)):
+            if msg.is_error_frame or msg.is_remote_frame or msg.is_extended_id:
+                continue
+            out.append((msg.arbitration_id, bytes(msg.data)))
+    except OSError:
+        raise
+    except Exception as exc:  # noqa: BLE001 -- python-can's readers raise many kinds
+        where = f" after {len(out)} frames" if out else ""
+        raise CanError(f"{path}: cannot read it as a CAN log{where} ({type(exc).__name__}: "
+                       f"{exc}); formats: {LOG_FORMATS}") from None
     return out
 
 

@@ -34,6 +34,18 @@ def percentiles_us(values_ns: Sequence[int]) -> dict[str, float]:
             "max": float(a.max()), "n": int(a.size)}
 
 
+def json_safe(obj):
+    """``obj`` with every non-finite float (NaN: "no sample yet") as None, so that the JSON
+    written is strict (null, not NaN, which JSON does not have)."""
+    if isinstance(obj, float):
+        return obj if math.isfinite(obj) else None
+    if isinstance(obj, dict):
+        return {k: json_safe(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [json_safe(v) for v in obj]
+    return obj
+
+
 def jitter_ns(ctl: Controller) -> list[int]:
     """|SYNC interval - period| per cycle [ns]."""
     p = ctl.period_ns
@@ -41,8 +53,9 @@ def jitter_ns(ctl: Controller) -> list[int]:
 
 
 def status_line(ctl: Controller, rec: CycleRecord, items: str = "") -> str:
+    p99 = percentiles_us(jitter_ns(ctl)[-500:])["p99"] if ctl.clock.realtime else math.nan
     jit = "stepped" if not ctl.clock.realtime else \
-        f"jitter p99 {percentiles_us(jitter_ns(ctl)[-500:])['p99']:.0f} us"
+        "jitter p99 -- us" if math.isnan(p99) else f"jitter p99 {p99:.0f} us"
     return (f"cycle {rec.cycle:6d}  t {rec.t_s:7.3f} s  {rec.phase:<8} "
             f"{_STATE.get(rec.state, '?'):<9} IMFS {rec.imfs:+d}  "
             f"err {rec.tracking_error:7.3f} mm  {items}load {100 * ctl.bus_load.load:.1f} %  "
@@ -100,19 +113,19 @@ def write_telemetry(path: str | Path, ctl: Controller, items: Sequence[Item] = (
                 "bits_per_cycle": ctl.bus_load.bits_per_cycle, "cycles": ctl.k,
                 "realtime": bool(ctl.clock.realtime), "timing": timing_summary(ctl)}
         head.update(extra or {})
-        f.write(json.dumps(head) + "\n")
+        f.write(json.dumps(json_safe(head), allow_nan=False) + "\n")
         for rec in ctl.trace:
             d = {"type": "cycle"}
             d.update(rec.as_dict())
-            f.write(json.dumps(d) + "\n")
+            f.write(json.dumps(json_safe(d), allow_nan=False) + "\n")
         for e in ctl.events:
             d = {"type": "event"}
             d.update(e.as_dict())
-            f.write(json.dumps(d) + "\n")
+            f.write(json.dumps(json_safe(d), allow_nan=False) + "\n")
         for it in items:
             d = {"type": "item"}
             d.update(asdict(it))
-            f.write(json.dumps(d) + "\n")
+            f.write(json.dumps(json_safe(d), allow_nan=False) + "\n")
 
 
 def plot_run(path: str | Path, ctl: Controller, items: Sequence[Item] = ()) -> None:

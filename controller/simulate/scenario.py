@@ -109,7 +109,7 @@ from pathlib import Path
 from typing import Any, Iterable
 
 from ..errors import ConfigError, ParameterError
-from ..yamlmarks import MarkedList, MarkedMap, load_marked
+from ..yamlmarks import MarkedList, MarkedMap, load_marked, read_text
 from ..tracking import PLANNERS, Limits, Mode, MotionState, Rates, SoftMcOptions, TrackerParams
 from ..tracking.types import DEFAULT_ROT, DEFAULT_TRANS
 from .master import SegmentError, build_profile
@@ -547,7 +547,7 @@ def _csv_master(node: _Node) -> CsvMaster:
     if not path.is_absolute():
         path = node.ctx.base_dir / path
     try:
-        text = path.read_text(encoding="utf-8")
+        text = read_text(path)
     except OSError as exc:
         raise node.error("csv", f"cannot read the master CSV {str(path)!r}: "
                                 f"{exc.strerror or exc}") from None
@@ -735,7 +735,7 @@ def load_scenario(source: str | Path | dict, *, base_dir: str | Path | None = No
         ctx = _Ctx("<scenario>", Path(base_dir) if base_dir is not None else Path.cwd())
         return _parse(source, ctx, None)
     path = Path(source)
-    text = path.read_text(encoding="utf-8")  # OSError propagates (the CLI reports it)
+    text = read_text(path)  # OSError propagates (the CLI reports it)
     ctx = _Ctx(str(path), Path(base_dir) if base_dir is not None else path.parent)
     data = _load_yaml(text, str(path))
     if data is None:
