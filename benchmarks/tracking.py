@@ -482,8 +482,11 @@ def build_targets(fig: dict, timing: dict, batch: dict, planners: list[str]) -> 
         return None if x is None else x <= lim
 
     add("success", d, "100 %", None if fd is None else fd["success_rate"] == 1.0)
-    add("success", s, "100 % (DampingFactor 1)",
-        None if fs is None else fs["success_rate"] == 1.0)
+    # the softmc target is "100 % synchronised at DampingFactor 1" (no time bound,
+    # unlike the default's "within 2 s"): every run synchronises within the run; the share
+    # within 2 s is shown in the table beside it
+    add("never_synced", s, f"0 (100 % synchronised in the {RUN_S:g} s run, DampingFactor 1)",
+        None if fs is None else fs["never_synced"] == 0)
     add("ratio_1d_median", d, "≤ 1.15", le(get(fd, "ratio_1d_median"), 1.15))
     add("ratio_1d_p90", d, "≤ 1.3", le(get(fd, "ratio_1d_p90"), 1.3))
     add("ratio_3d_median", d, "≤ 1.2", le(get(fd, "ratio_3d_median"), 1.2))
