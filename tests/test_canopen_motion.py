@@ -391,3 +391,214 @@ def test_gotoy_set_position_error(tmp_path, monkeypatch):
     assert int(devs[0].load(0x6061, 0)) == 8
     assert r.latched_mm is not None and r.home_offset_mm == r.latched_mm
     assert r.set_after_counts == r.set_before_counts  # not moved, not set
+
+
+# -- --max-time: a controlled stop, not a quick stop (audit gap 1) -----------------------------
+def _session(cfg, jobs, max_time_s):
+    """Run ``jobs`` on the simulated devices; (reports, controller)."""
+    from controller.canopen.world import SimWorld
+    with SimWorld(cfg) as world:
+        ctl = am.MotionController(cfg, world.transport, jobs)
+        return am.run_jobs(ctl, max_time_s), ctl
+
+
+def _reactions(ctl) -> list[str]:
+    """Events the controller reacted to (quick stop, ...): none after a controlled stop."""
+    return [str(e) for e in ctl.events if e.reaction]
+
+
+def _at_rest_on_last_setpoint(r: am.MotionReport) -> None:
+    # the setpoint stream came to rest (jerk-limited: the last steps are tiny)
+    assert abs(r.targets[-1] - r.targets[-2]) <= 10
+    assert r.end_counts == r.targets[-1]  # and the drive stands on it (no following error)
+    assert r.setpoint_mm == pytest.approx(r.end_mm, abs=1 / CPM)
+
+
+def test_move_max_time_stops_jerk_limited(tmp_path):
+    cfg = cfg_of(tmp_path)
+    ax = am._axis(cfg, "y")
+    # 30 -> 1000 mm takes > 5 s at 200 mm/s: cut off at 1 s (at full speed)
+    (r,), ctl = _session(cfg, [am.MoveJob(ax, cfg.period_s, 1000.0)], 1.0)
+    assert not r.ok and r.result == "ERROR_TIMEOUT"
+    assert "not done within 1 s" in r.message and "stopped (jerk-limited) at" in r.message
+    assert f"{r.end_mm:.4f}" in r.message  # says where it stopped
+    assert r.states[-2:] == ["DECEL", "READY"]
+    assert _reactions(ctl) == []  # no following error, no quick stop
+    _at_rest_on_last_setpoint(r)
+    assert 40.0 < r.end_mm < 1000.0
+    check_stream(r)  # the stop keeps the acceleration limit (no jump of the setpoint)
+    assert ctl.phase.name == "STOPPED"  # and then the drives were disabled
+
+
+def test_move_max_time_cli(tmp_path, capsys):
+    p = tmp_path / "bus.yml"
+    p.write_text(yml_text())
+    assert cli.main(["move", str(p), "--axis", "y", "--to", "1000", "--max-time", "1",
+                     "-q"]) == 1
+    out = capsys.readouterr()
+    assert "move y: FAILED (ERROR_TIMEOUT): not done within 1 s: stopped (jerk-limited) at" \
+        in out.out
+    assert "following_error" not in out.err and "quick stop" not in out.err
+
+
+def test_jog_max_time_stops_jerk_limited(tmp_path):
+    cfg = cfg_of(tmp_path)
+    ax = am._axis(cfg, "y")
+    (r,), ctl = _session(cfg, [am.JogJob(ax, cfg.period_s, 100.0, 3.0)], 1.0)
+    assert not r.ok and r.result == "ERROR_TIMEOUT" and "stopped" in r.message
+    assert _reactions(ctl) == []
+    _at_rest_on_last_setpoint(r)
+    check_stream(r, vel=100.0)
+
+
+def test_max_time_during_brake_release(tmp_path):
+    # time is up while the brake opens: no motion at all, the brake engages again
+    cfg = cfg_of(tmp_path, motion=f"{{vel: {V}, acc: {A}, jerk: 50000, brake_release_s: 0.5, "
+                                  "brake_engage_s: 0.03}")
+    ax = am._axis(cfg, "y")
+    (r,), ctl = _session(cfg, [am.MoveJob(ax, cfg.period_s, 100.0)], 0.4)
+    assert r.result == "ERROR_TIMEOUT" and _reactions(ctl) == []
+    assert set(r.targets) == {300000} and r.end_counts == 300000
+    assert r.states[:1] == ["BRAKE_RELEASE"] and r.states[-1] == "READY"
+
+
+def test_max_time_while_enabling(tmp_path):
+    cfg = cfg_of(tmp_path)
+    r = am.move(cfg, "y", 50.0, max_time_s=0.004)  # before the drives are enabled
+    assert not r.ok and r.result == "ERROR_TIMEOUT" and r.targets == []
+
+
+def test_max_time_gotoy_and_drive_homing_of_several_axes(tmp_path):
+    # x: the drive's "current position" homing (at once); y: GotoY, cut off while searching
+    cfg = cfg_of(tmp_path, sim="", x_homing="{method: drive, drive_method: 35, timeout_s: 1}")
+    reports, ctl = _session(
+        cfg, [am.make_home_job(am._axis(cfg, n), cfg.period_s) for n in ("x", "y")], 1.0)
+    x, y = reports
+    assert x.ok and not y.ok and y.result == "ERROR_TIMEOUT" and "stopped" in y.message
+    assert "ABORT" in y.states and y.states[-1] == "STOP"
+    assert _reactions(ctl) == []
+    _at_rest_on_last_setpoint(y)
+    check_stream(y)
+    # time up while x runs the drive's homing: interrupted, back in CSP; y does not run
+    cfg = cfg_of(tmp_path, x_homing="{method: drive, drive_method: 21, switch_vel: 20, "
+                                    "timeout_s: 5}")
+    reports, ctl = _session(
+        cfg, [am.make_home_job(am._axis(cfg, n), cfg.period_s) for n in ("x", "y")], 0.5)
+    assert [(r.axis, r.result) for r in reports] == [("x", "ERROR_TIMEOUT")]
+    assert _reactions(ctl) == []
+    assert reports[0].states[-1] == "CSP"  # the drive's homing interrupted, back in CSP
+
+
+def test_max_time_drive_homing(tmp_path):
+    cfg = cfg_of(tmp_path, homing="{method: drive, drive_method: 21, switch_vel: 20, "
+                                   "timeout_s: 5}")
+    devs = []
+    (r,) = am.home(cfg, "y", setup=_device(devs), max_time_s=0.6)
+    assert not r.ok and r.result == "ERROR_TIMEOUT" and "0.6 s" in r.message
+    assert "interrupted" in r.message and f"stopped at {r.end_mm:.4f} mm" in r.message
+    assert r.states[-1] == "CSP" and int(devs[0].load(0x6061, 0)) == 8
+    assert 15.0 < r.end_mm < 29.0 and r.end_counts == r.targets[-1]
+
+
+def test_stop_between_jobs_next_not_started(tmp_path):
+    # the stop is requested right after x is done: y does not start, and its report says so
+    from controller.canopen.world import SimWorld
+    cfg = cfg_of(tmp_path, x_homing="{method: drive, drive_method: 35, timeout_s: 1}")
+
+    def on_cycle(ctl, rec):
+        if ctl.index == 0 and ctl.job.done and ctl.stop_reason is None:
+            ctl.request_stop("ERROR_TIMEOUT", "time is up")
+
+    with SimWorld(cfg) as world:
+        jobs = [am.make_home_job(am._axis(cfg, n), cfg.period_s) for n in ("x", "y")]
+        ctl = am.MotionController(cfg, world.transport, jobs, on_cycle=on_cycle)
+        x, y = am.run_jobs(ctl)
+    assert x.ok
+    assert (y.ok, y.result, y.message) == (False, "ERROR_TIMEOUT", "time is up: not started")
+    assert y.targets == [] and y.states == [] and _reactions(ctl) == []
+    assert "not started" in y.summary()
+
+
+@pytest.mark.parametrize("value", ["nan", "0", "-1", "inf"])
+def test_cli_max_time_must_be_positive(tmp_path, capsys, value):
+    p = tmp_path / "bus.yml"
+    p.write_text(yml_text())
+    assert cli.main(["move", str(p), "--axis", "y", "--to", "35", "-q",
+                     f"--max-time={value}"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == f"cantrack: error: --max-time {float(value):g}: must be a finite number " \
+                  "of seconds > 0"
+    with pytest.raises(am.MotionError, match="finite number of seconds > 0"):
+        am.move(load_bus_config(p), "y", 35.0, max_time_s=float(value))
+
+
+# -- homing needs a homing: section (audit gap 2) ----------------------------------------------
+def test_home_axis_without_homing_section(tmp_path, capsys):
+    p = tmp_path / "bus.yml"
+    p.write_text(yml_text())  # x has no homing: section
+    cfg = load_bus_config(p)
+    node = cfg.slaves["x"].node_id
+    msg = f"axis x (node {node}) has no homing: section in {p}"
+    with pytest.raises(am.MotionError) as exc:
+        am.home(cfg, "x")
+    assert str(exc.value) == msg
+    with pytest.raises(am.MotionError, match="has no homing: section"):
+        am.home(cfg, ["y", "x"])  # before anything moves: y is not homed either
+    with pytest.raises(am.MotionError, match="has no homing: section"):
+        am.make_home_job(am._axis(cfg, "x"), cfg.period_s)
+    assert cli.main(["home", str(p), "--axis", "x", "-q"]) == 2
+    assert capsys.readouterr().err.strip() == f"cantrack: error: {msg}"
+
+
+def test_home_all_skips_axes_without_homing(tmp_path, capsys):
+    p = tmp_path / "bus.yml"
+    p.write_text(yml_text())
+    reports = am.home(load_bus_config(p))
+    assert [(r.axis, r.ok, r.result) for r in reports] == [("y", True, "FINISHED"),
+                                                          ("x", True, "SKIPPED")]
+    assert reports[1].targets == [] and "no homing: section" in reports[1].message
+    assert cli.main(["home", str(p), "-q"]) == 0
+    out = capsys.readouterr().out
+    assert f"home x: SKIPPED: not homed: no homing: section in {p}" in out
+    p.write_text(yml_text().replace(f", homing: {GOTOY}", ""))
+    with pytest.raises(am.MotionError, match="no axis has a homing: section"):
+        am.home(load_bus_config(p))
+
+
+# -- the progress display (audit gap 3) --------------------------------------------------------
+def test_cli_progress_shows_setpoint_and_target(tmp_path, capsys):
+    p = tmp_path / "bus.yml"
+    p.write_text(yml_text())
+    assert cli.main(["move", str(p), "--axis", "y", "--to", "35"]) == 0
+    lines = [ln for ln in capsys.readouterr().err.splitlines() if ln.startswith("move y:")]
+    assert lines
+    for ln in lines:
+        assert "setpoint" in ln and ln.endswith("target    35.0000")
+    assert cli.main(["jog", str(p), "--axis", "y", "--speed", "-10", "--time", "1"]) == 0
+    lines = [ln for ln in capsys.readouterr().err.splitlines() if ln.startswith("jog y:")]
+    assert lines and all("setpoint" in ln and ln.endswith("speed -10") for ln in lines)
+
+
+# -- a limit switch: the setpoint stream stops where the drive stopped (audit gap 4) -----------
+@pytest.mark.parametrize("speed", [-50.0, -100.0, -200.0])
+def test_limit_switch_setpoint_ends_at_actual(tmp_path, speed):
+    # the negative limit switch at 25 mm; the drive refuses to move into it and stops there
+    cfg = cfg_of(tmp_path, sim=", negative_limit: 250000")
+    r = am.jog(cfg, "y", speed, 5.0)
+    assert r.result == "ERROR_LIMIT_SWITCH"
+    assert 24.5 < r.end_mm <= 25.0
+    # the last setpoint sent (with the quick stop) and reported is where the drive stands
+    assert r.targets[-1] == r.end_counts
+    assert abs(r.setpoint_mm - r.end_mm) <= 1 / CPM
+    r = am.move(cfg, "y", 0.0)
+    assert r.result == "ERROR_LIMIT_SWITCH" and r.targets[-1] == r.end_counts
+    assert abs(r.setpoint_mm - r.end_mm) <= 1 / CPM
+
+
+def test_gotoy_limit_switch_holds_at_actual(tmp_path):
+    cfg = cfg_of(tmp_path, initial=50000,
+                 sim=", slow_down: [-100000, 100000], negative_limit: -20000")
+    (r,) = am.home(cfg, "y")
+    assert r.result == "ERROR_LIMIT_SWITCH"
+    assert r.targets[-1] == r.end_counts  # held where the drive stopped at the switch
+    assert abs(r.setpoint_mm - r.end_mm) <= 1 / CPM

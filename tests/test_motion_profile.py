@@ -320,3 +320,16 @@ def test_follower_time_is_sample_counter():
         f.step()
     assert f.samples == 7
     assert f.state.position_mm == pytest.approx(p.state_at(0.07).position_mm, abs=1e-12)
+
+
+@PROPERTY
+@given(limits_strategy(), st.floats(-1.0, 1.0), st.floats(0.0, 1.0))
+def test_stop_duration_bound(limits, v_frac, frac):
+    # the CAN shell waits at most 2 (V/A + A/J) for a stop (--max-time): any state reached
+    # within the limits stops within that
+    jog = plan_velocity(KinematicState(0.0), v_frac * limits.max_vel, limits)
+    pulse = sum(s.duration_s for s in jog.segments[:-1])
+    state = jog.state_at(frac * pulse)
+    stop = plan_stop(state, limits)
+    bound = 2.0 * (limits.max_vel / limits.max_acc + limits.max_acc / limits.max_jerk)
+    assert stop.duration_s <= bound

@@ -30,9 +30,31 @@ one session -- one boot, one enable -- and :func:`home` homes several axes that 
 * :class:`NoHomingJob` -- absolute encoders: the configured offset, no motion.
 
 Every job ends in a :class:`MotionReport` (ok, result code, message, the states passed,
-end position in mm and counts, time).  The functions :func:`home`, :func:`move`,
-:func:`jog` run them on the embedded virtual bus with simulated devices (stepped time, the
-default) or on a given transport (a real bus: :class:`~.transport.RealtimeTransport`).
+end position in mm and counts, time).
+
+Ending early:
+
+* The time limit (``max_time_s``, ``--max-time``; from the start of the session, enable
+  included) is a controlled stop, not a quick stop: the running job stops jerk-limited from
+  its present (p, v, a) (:meth:`PointToPoint.stop <controller.motion.PointToPoint.stop>`,
+  :meth:`Jog.stop <controller.motion.Jog.stop>`, :meth:`GotoY.stop
+  <controller.motion.GotoY.stop>`; the drive's homing is interrupted by controlword bit 4
+  low), the brake engages, then the drives are disabled; the report has
+  ``ERROR_TIMEOUT`` and where the axis stopped; a job after it does not start (its report
+  says "not started").  The wait for the stop is bounded (2 (V/A + A/J) plus the brake
+  and stop times).  It must be a finite number of seconds > 0.
+* A limit switch (60FDh bit 0/1, when mapped) while moving into it: the drive has stopped
+  itself at the switch, so the setpoint (607Ah) stops where the drive stands (6064h), not
+  where the profile would have gone; then the quick stop of all drives.  GotoY stops
+  jerk-limited on a limit switch (its own ``ERROR_LIMIT_SWITCH``) and then holds where the
+  drive stands.  Either way the last setpoint equals the actual position: no jump when the
+  drive is enabled again.
+* Homing needs a ``homing:`` section: a named axis without one is an error; homing all
+  axes skips (and reports as ``SKIPPED``) the axes without one.
+
+The functions :func:`home`, :func:`move`, :func:`jog` run them on the embedded virtual bus
+with simulated devices (stepped time, the default) or on a given transport (a real bus:
+:class:`~.transport.RealtimeTransport`).
 """
 
 from __future__ import annotations
@@ -115,6 +137,8 @@ class MotionReport:
 
     def summary(self) -> str:
         unit = "deg" if self.axis == "c" else "mm"
+        if self.result == "SKIPPED":
+            return f"{self.kind} {self.axis}: SKIPPED: {self.message}"
         lines = [f"{self.kind} {self.axis}: {'OK' if self.ok else 'FAILED'} ({self.result})"
                  + (f": {self.message}" if self.message else ""),
                  f"  states:   {' -> '.join(self.states) if self.states else '-'}",
@@ -192,6 +216,17 @@ class Job:
         """True while the drive is in homing mode (bit 13 is then 'homing error')."""
         return False
 
+    def request_stop(self, ctl: MotionController, result: str, message: str) -> float:
+        """Stop the running job in a controlled way (e.g. ``--max-time`` is up): the job
+        then ends by itself with ``result``/``message`` once the axis is at rest.  Returns
+        an upper bound [s] of the time that takes (0: the job has been finished here)."""
+        self.finish(ctl, ctl.k, False, result, message)
+        return 0.0
+
+    def progress(self) -> str:
+        """Extra text for the progress line (the final target, the jog speed ...)."""
+        return ""
+
     # -- helpers ----------------------------------------------------------------------------
     def state(self, name: str) -> None:
         if not self.report.states or self.report.states[-1] != name:
@@ -216,6 +251,8 @@ class _SetpointJob(Job):
         self.obj: Any = None
         self.setpoint_mm = 0.0
         self._error: Any = None
+        #: (result, message) of a stop requested from outside (:meth:`request_stop`)
+        self._abort: tuple[str, str] | None = None
 
     def output(self, ctl: MotionController, k: int):
         raise NotImplementedError
@@ -226,28 +263,58 @@ class _SetpointJob(Job):
         self.setpoint_mm = out.position_mm
         self.report.setpoint_mm = out.position_mm
         sc = self.ax.scale
+        inp = self.io.input
         if self.checks_limits and self.di & (DI_NEG_LIMIT | DI_POS_LIMIT):
-            # moving into an active limit switch (60FDh bit 0 / 1): abort
+            # moving into an active limit switch (60FDh bit 0 / 1): abort.  The drive has
+            # stopped itself at the switch (it refuses to move into it): the setpoint stream
+            # stops where the drive stands, not where the profile would have been
             v = out.velocity_mm_s * sc.sign
             which = ("negative", 0) if self.di & DI_NEG_LIMIT and v < 0 else \
                 ("positive", 1) if self.di & DI_POS_LIMIT and v > 0 else None
             if which is not None:
                 self.report.inputs.append(self.di)
+                actual = inp.actual if inp is not None else self.io.target
+                self.report.setpoint_mm = sc.from_counts(actual)
                 ctl.fail_job(k, f"{which[0]} limit switch (60FDh bit {which[1]}) active at "
-                                f"{sc.from_counts(self.io.input.actual):.4f} while moving",
+                                f"{sc.from_counts(actual):.4f} while moving",
                              result="ERROR_LIMIT_SWITCH")
-                return cia402.CW_QUICK_STOP_CMD, self.io.target
+                return cia402.CW_QUICK_STOP_CMD, actual
         if self.checks_limits and not sc.min <= out.position_mm <= sc.max:
+            self.report.setpoint_mm = sc.from_counts(self.io.target)  # the last one sent
             ctl.fail_job(k, f"setpoint {out.position_mm:.4f} outside [{sc.min:g}, {sc.max:g}]")
             return cia402.CW_QUICK_STOP_CMD, self.io.target
         if out.result < 0 and self._error is None:
             self._error = out  # the motion object stops (ABORT, brake): follow it to rest
+        target = sc.to_counts(out.position_mm)
         if out.result is not MotionResult.WORKING and out.state.name in ("STOP", "READY"):
             first = self._error or out
-            self.finish(ctl, k, first.result is MotionResult.FINISHED, first.result.name,
-                        first.message)
+            if self._abort is not None:
+                unit = "deg" if self.ax.name == "c" else "mm"
+                result, message = self._abort
+                self.finish(ctl, k, False, result,
+                            f"{message}: stopped (jerk-limited) at {out.position_mm:.4f} {unit}")
+            else:
+                if first.result is MotionResult.ERROR_LIMIT_SWITCH and inp is not None:
+                    # the drive stopped itself at the switch while the stop profile went
+                    # on: hold where the drive stands (no jump on the next enable)
+                    target = inp.actual
+                    self.report.setpoint_mm = sc.from_counts(target)
+                self.finish(ctl, k, first.result is MotionResult.FINISHED,
+                            first.result.name, first.message)
             self.ended(out)
-        return cia402.CW_ENABLE, sc.to_counts(out.position_mm)
+        return cia402.CW_ENABLE, target
+
+    def request_stop(self, ctl: MotionController, result: str, message: str) -> float:
+        if self.obj is None:
+            return super().request_stop(ctl, result, message)
+        if self._abort is None and self._error is None:
+            self._abort = (result, message)
+            self.obj.stop()  # jerk-limited stop from the present (p, v, a), then the brake
+        m = self.ax.motion
+        # an upper bound: the longest stop (from full speed and full acceleration), the
+        # brake and the stop time, and some cycles of margin
+        stop_s = 2.0 * (m.vel / m.acc + m.acc / m.jerk)
+        return stop_s + m.brake_engage_s + m.stop_time_s + 20 * self.period_s
 
     checks_limits = True
 
@@ -280,12 +347,17 @@ class MoveJob(_SetpointJob):
     def set_target(self, target_mm: float) -> None:
         """Re-target (also while moving: re-planned from the present p, v, a)."""
         self._check(target_mm)
+        if self._abort is not None or self.done:
+            return  # stopping (time is up) or done: no new target
         self.target_mm = float(target_mm)
         if self.obj is not None:
             self.obj.set_target(self.target_mm)
 
     def output(self, ctl: MotionController, k: int):
         return self.obj.update()
+
+    def progress(self) -> str:
+        return f"target {self.target_mm:10.4f}"
 
 
 class JogJob(_SetpointJob):
@@ -298,8 +370,8 @@ class JogJob(_SetpointJob):
         if not math.isfinite(speed) or abs(speed) > ax.motion.vel or speed == 0:
             raise MotionError(f"axis {ax.name}: jog speed {speed} must be non-zero and "
                               f"within +-{ax.motion.vel:g} (motion.vel)")
-        if not time_s > 0:
-            raise MotionError(f"jog time {time_s} must be > 0")
+        if not (math.isfinite(time_s) and time_s > 0):
+            raise MotionError(f"jog time {time_s} must be a finite number of seconds > 0")
         self.speed = float(speed)
         self.n_run = max(1, round(time_s / period_s))
         self.obj: Jog | None = None
@@ -312,7 +384,7 @@ class JogJob(_SetpointJob):
 
     def output(self, ctl: MotionController, k: int):
         jog = self.obj
-        if k - self._k0 == self.n_run:
+        if k - self._k0 == self.n_run and jog.velocity_command_mm_s != 0.0:
             jog.stop()
         kin = jog.kinematic_state
         if jog.velocity_command_mm_s != 0.0 and kin.velocity_mm_s != 0.0:
@@ -330,6 +402,9 @@ class JogJob(_SetpointJob):
     def ended(self, out) -> None:
         if self.soft_limit and self.report.ok:
             self.report.message = "stopped early at the axis limit"
+
+    def progress(self) -> str:
+        return f"speed {self.speed:+g}"
 
 
 class GotoYJob(_SetpointJob):
@@ -400,6 +475,13 @@ class GotoYJob(_SetpointJob):
 
     def masks_bit13(self) -> bool:
         return self.phase in ("low", "run", "back")
+
+    def request_stop(self, ctl: MotionController, result: str, message: str) -> float:
+        if self.phase == "gotoy":
+            return super().request_stop(ctl, result, message)
+        # GotoY is done and the axis at rest: the drive's position is being set (no
+        # motion); let that end (bounded by its own time-outs)
+        return (self.SETTLE_CYCLES_MAX + 20) * self.period_s + self.SET_TIMEOUT_S
 
     def _fail_set(self, ctl: MotionController, k: int, message: str) -> None:
         self.phase = "csp"
@@ -505,6 +587,7 @@ class DriveHomingJob(Job):
         self.phase = "setup"
         self._k_start = 0
         self._error: tuple[str, str] | None = None
+        self._stop_req: tuple[str, str] | None = None
         self.sdo: SdoClient | None = None
 
     def attach(self, ctl: MotionController, io: AxisIO) -> None:
@@ -518,8 +601,15 @@ class DriveHomingJob(Job):
     def _u32(self, mm: float) -> bytes:
         return max(1, round(mm * self.ax.scale.counts_per_unit)).to_bytes(4, "little")
 
+    def request_stop(self, ctl: MotionController, result: str, message: str) -> float:
+        # the drive runs the homing: controlword bit 4 low interrupts it (the drive stops
+        # with its own ramp), then back to CSP on the position it stands
+        if self._stop_req is None:
+            self._stop_req = (result, message)
+        return 1.0 + 20 * self.period_s
+
     def between(self, ctl: MotionController) -> None:
-        if not self.started:
+        if not self.started or (self._stop_req is not None and self.phase == "setup"):
             return
         sdo = self.sdo
         if self.phase == "setup":
@@ -549,7 +639,14 @@ class DriveHomingJob(Job):
         inp = io.input
         actual = inp.actual if inp is not None else io.target
         if self.phase == "setup":
+            if self._stop_req is not None:  # not in homing mode yet: nothing to undo
+                self.report.setpoint_mm = self.ax.scale.from_counts(actual)
+                self.finish(ctl, k, False, *self._stop_req)
             return cia402.CW_ENABLE, actual
+        if self._stop_req is not None and self.phase in ("low", "run"):
+            self._error = self._stop_req
+            self.phase = "back"
+            return cia402.CW_ENABLE, actual  # bit 4 low: interrupts the homing
         if self.phase == "low":
             self.phase = "run"
             self._k_start = k
@@ -579,13 +676,23 @@ class DriveHomingJob(Job):
             self.report.home_offset_mm = 0.0  # the drive's position is now homed
             self.finish(ctl, k, True, MotionResult.FINISHED.name,
                         f"drive homing method {self.h.drive_method} attained")
+        elif self._error is self._stop_req:
+            unit = "deg" if self.ax.name == "c" else "mm"
+            result, message = self._error
+            self.finish(ctl, k, False, result,
+                        f"{message}: the drive's homing interrupted (controlword bit 4 low), "
+                        f"stopped at {self.report.setpoint_mm:.4f} {unit}")
         else:
             self.finish(ctl, k, False, *self._error)
         return cia402.CW_ENABLE, io.hold
 
 
 def make_home_job(ax: AxisConfig, period_s: float) -> Job:
-    method = ax.homing.method if ax.homing is not None else "gotoy"
+    """The job for the axis' configured homing method; an axis without a ``homing:``
+    section is an error (no default method: homing moves the axis)."""
+    if ax.homing is None:
+        raise MotionError(f"axis {ax.name} (node {ax.node!r}) has no homing: section")
+    method = ax.homing.method
     if method == "none":
         return NoHomingJob(ax, period_s)
     if method == "drive":
@@ -623,6 +730,8 @@ class MotionController(Controller):
         if not self.jobs:
             raise MotionError("no motion job")
         self.index = 0
+        #: (result, message) once a controlled stop was requested (:meth:`request_stop`)
+        self.stop_reason: tuple[str, str] | None = None
         self.ios: list[AxisIO] = []
         for job in self.jobs:
             io = next((a for a in self.axes if a.axis == job.ax.name), None)
@@ -644,6 +753,17 @@ class MotionController(Controller):
     def all_done(self) -> bool:
         job = self.job
         return job.done and (not job.report.ok or self.index == len(self.jobs) - 1)
+
+    def request_stop(self, result: str, message: str) -> int:
+        """Stop in a controlled way (no quick stop): the running job stops jerk-limited and
+        ends with ``result``/``message`` when the axis is at rest; no further job starts.
+        Returns the number of cycles after which to give up waiting for that."""
+        if self.stop_reason is None:
+            self.stop_reason = (result, message)
+        job = self.job
+        if job.done or not job.started:
+            return 2  # the next cycle ends it (see _run_step)
+        return math.ceil(job.request_stop(self, result, message) / self.cfg.period_s) + 1
 
     def fail_job(self, k: int, message: str, result: str = "ERROR_LIMIT") -> None:
         t_s = (self.clock.now_ns() - self.t0) * 1e-9
@@ -667,7 +787,13 @@ class MotionController(Controller):
         if self.job.done and not self.all_done:
             self.index += 1
         job = self.job
-        if not job.started:
+        if not job.started and self.stop_reason is not None and not job.done:
+            # stopped (time is up) before this job could start: it does not run
+            job._k0 = k
+            job.report.start_mm = self.io.scale.from_counts(self.io.hold)
+            job.finish(self, k, False, self.stop_reason[0],
+                       f"{self.stop_reason[1]}: not started")
+        elif not job.started:
             job.start(self, k, self.io.scale.from_counts(self.io.hold))
         out = []
         for a in self.axes:
@@ -695,12 +821,28 @@ def run_jobs(ctl: MotionController, max_time_s: float = 600.0,
              boot: bool = True) -> list[MotionReport]:
     """Boot, enable, run the jobs until they are done (or one fails); returns the reports
     of the jobs that ran (a job after a failure does not run)."""
+    check_max_time(max_time_s)
     if boot:
         ctl.boot()
     ctl.start()
-    max_cycles = int(max_time_s / ctl.cfg.period_s) + 1
+    deadline = int(max_time_s / ctl.cfg.period_s) + 1
+    timeout = f"not done within {max_time_s:g} s"
+    stopping = False
     try:
-        while ctl.k < max_cycles:
+        while True:
+            if ctl.k >= deadline and ctl.phase is Phase.RUNNING and not stopping:
+                # time is up: a controlled (jerk-limited) stop of the running job, to rest;
+                # not a quick stop, and no following error from a setpoint that jumps
+                stopping = True
+                deadline = ctl.k + ctl.request_stop("ERROR_TIMEOUT", timeout)
+            if ctl.k >= deadline and ctl.phase is not Phase.STOPPING:
+                io = ctl.io
+                if not ctl.job.done and ctl.job.started:
+                    io.hold = io.target  # hold the last setpoint sent, not an older one
+                ctl.job.finish(ctl, ctl.k - 1, False, "ERROR_TIMEOUT",
+                               timeout + (" and not at rest after the stop" if stopping
+                                          else ""))
+                break
             if ctl.phase is Phase.RUNNING and ctl.job.started and not ctl.job.done:
                 ctl.job.between(ctl)
             ctl.step()
@@ -710,14 +852,13 @@ def run_jobs(ctl: MotionController, max_time_s: float = 600.0,
                 break
             if ctl.phase is Phase.STOPPING and ctl._stop_cycles > ctl.STOP_CYCLES_MAX:
                 break
-        else:
-            ctl.job.finish(ctl, ctl.k - 1, False, "ERROR_TIMEOUT",
-                           f"not done within {max_time_s:g} s")
         if ctl.phase is Phase.RUNNING:
             # let the drive settle on the last setpoint before reading the end position
             for _ in range(5):
                 ctl.step()
             ctl.disable()
+        elif ctl.phase is Phase.ENABLING:
+            ctl.disable()  # time up while enabling: leave no drive enabled
     except CanError as exc:
         ctl.job.finish(ctl, ctl.k, False, "ERROR", str(exc))
     job = ctl.job
@@ -736,6 +877,16 @@ def run_jobs(ctl: MotionController, max_time_s: float = 600.0,
             r.end_mm = io.scale.from_counts(io.input.actual)
         reports.append(r)
     return reports
+
+
+def check_max_time(max_time_s: float, name: str = "max_time_s") -> float:
+    """``max_time_s`` if it is a finite number of seconds > 0; else :class:`MotionError`."""
+    if not (isinstance(max_time_s, (int, float)) and math.isfinite(max_time_s)
+            and max_time_s > 0):
+        raise MotionError(f"{name} {max_time_s:g}: must be a finite number of seconds > 0"
+                          if isinstance(max_time_s, (int, float)) else
+                          f"{name} {max_time_s!r}: must be a finite number of seconds > 0")
+    return float(max_time_s)
 
 
 def run_job(ctl: MotionController, max_time_s: float = 600.0, boot: bool = True) -> MotionReport:
@@ -801,18 +952,37 @@ def home(config, axis: str | Sequence[str] | None = None, *, transport=None,
          setup=None) -> list[MotionReport]:
     """Home ``axis`` (a name, several, or None = every axis with a ``homing:`` section, in
     the configured order) with its configured method, one after the other in one session;
-    stops at the first failure (the later axes get no report)."""
+    stops at the first failure (the later axes get no report).
+
+    A named axis without a ``homing:`` section is an error (:class:`MotionError`, before
+    anything moves): there is no default homing method.  With ``axis=None`` the axes
+    without one are not homed; each gets a report with result ``SKIPPED`` (ok, says why),
+    at the end of the list; an error if no axis has a ``homing:`` section."""
     cfg = _load(config)
+    skipped: list[AxisConfig] = []
     if axis is None:
         names = [a.name for a in cfg.tracking.axes if a.homing is not None]
+        skipped = [a for a in cfg.tracking.axes if a.homing is None]
         if not names:
-            raise MotionError("no axis has a homing: section")
+            raise MotionError(f"no axis has a homing: section in {cfg.file}")
     elif isinstance(axis, str):
         names = [axis]
     else:
         names = list(axis)
-    jobs = [make_home_job(_axis(cfg, name), cfg.period_s) for name in names]
-    return _run(cfg, jobs, transport, on_cycle, max_time_s, setup)
+    axes = [_axis(cfg, name) for name in names]
+    for ax in axes:
+        if ax.homing is None:
+            node_id = cfg.slaves[ax.node].node_id
+            raise MotionError(f"axis {ax.name} (node {node_id}) has no homing: section "
+                              f"in {cfg.file}")
+    jobs = [make_home_job(ax, cfg.period_s) for ax in axes]
+    check_max_time(max_time_s)
+    reports = _run(cfg, jobs, transport, on_cycle, max_time_s, setup)
+    for ax in skipped:
+        reports.append(MotionReport(
+            "home", ax.name, ok=True, result="SKIPPED",
+            message=f"not homed: no homing: section in {cfg.file}"))
+    return reports
 
 
 # -- command line (cmd_home, cmd_move, cmd_jog) ----------------------------------------------
@@ -821,7 +991,8 @@ def add_common_arguments(p) -> None:
     p.add_argument("config", help="bus.yml with a .tracking section (axes, motion, homing)")
     canbus.add_arguments(p)
     p.add_argument("--max-time", type=float, default=600.0, metavar="S",
-                   help="give up after this many seconds (default 600)")
+                   help="time limit [s] (default 600): when it is up, the axis stops "
+                        "jerk-limited, then the drives are disabled (result ERROR_TIMEOUT)")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress display")
 
 
@@ -832,8 +1003,12 @@ def real_bus_requested(args) -> bool:
 
 def cli_run(args, action: Callable[..., list[MotionReport] | MotionReport]) -> int:
     """Run ``action(cfg, transport=..., on_cycle=..., max_time_s=...)``; print the report(s);
-    exit code 0 if every job succeeded, 1 otherwise."""
+    exit code 0 if every job succeeded (a ``SKIPPED`` axis counts as success), 1 otherwise;
+    a bad ``--max-time`` (not a finite number > 0) is an error (:class:`MotionError`: exit
+    code 2 from ``cantrack``)."""
     import sys
+    # checked before anything else (one line "cantrack: error: ...", exit code 2)
+    check_max_time(args.max_time, "--max-time")
     cfg = _load(args.config)
     tty = sys.stderr.isatty()
     last = [-1.0]
@@ -849,8 +1024,10 @@ def cli_run(args, action: Callable[..., list[MotionReport] | MotionReport]) -> i
         io = ctl.io
         state = job.report.states[-1] if job.report.states else ctl.phase.value
         actual = io.scale.from_counts(io.input.actual) if io.input is not None else math.nan
+        extra = job.progress()
         line = (f"{job.kind} {job.ax.name}: t {rec.t_s:7.3f} s  {state:<14} "
-                f"actual {actual:10.4f}  target {io.scale.from_counts(io.target):10.4f}")
+                f"actual {actual:10.4f}  setpoint {io.scale.from_counts(io.target):10.4f}"
+                + (f"  {extra}" if extra else ""))
         print("\r" + line if tty else line, end="" if tty else "\n", file=sys.stderr,
               flush=True)
 
@@ -858,7 +1035,8 @@ def cli_run(args, action: Callable[..., list[MotionReport] | MotionReport]) -> i
     if real_bus_requested(args):
         from . import canbus
         from .transport import RealtimeTransport
-        transport = RealtimeTransport(canbus.open_bus(args, cfg.bitrate))
+        settings, cfg = canbus.bus_config_for(args, cfg)  # -b wins; load checked at it
+        transport = RealtimeTransport(canbus.open_configured(settings))
     try:
         result = action(cfg, transport=transport, on_cycle=on_cycle, max_time_s=args.max_time)
     finally:

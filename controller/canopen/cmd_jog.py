@@ -1,8 +1,9 @@
 """``cantrack jog CONFIG --axis x --speed 50 --time 2``: jog an axis, then stop.
 
 Jerk-limited with the axis' ``motion:`` limits; stops early before the axis' min/max and
-aborts on a limit switch (60FDh, when mapped).  Simulated devices by default, a real bus
-with -i/-c/-b.  Python/HIL: :func:`controller.canopen.axis_motion.jog`.
+aborts on a limit switch (60FDh, when mapped).  ``--max-time`` (> 0 s) stops the jog
+jerk-limited where it is (ERROR_TIMEOUT, exit code 1).  Simulated devices by default, a real
+bus with -i/-c/-b.  Python/HIL: :func:`controller.canopen.axis_motion.jog`.
 """
 
 from __future__ import annotations

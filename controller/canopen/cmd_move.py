@@ -1,8 +1,9 @@
 """``cantrack move CONFIG --axis x --to 100``: a jerk-limited point-to-point move.
 
 The axis' ``motion:`` limits and brake times (.tracking.kinematics.axes); the target is a
-machine coordinate [mm|deg] within the axis' min/max.  Simulated devices by default, a real
-bus with -i/-c/-b.  Python/HIL: :func:`controller.canopen.axis_motion.move`.
+machine coordinate [mm|deg] within the axis' min/max.  ``--max-time`` (> 0 s) stops the
+move jerk-limited where it is (ERROR_TIMEOUT, exit code 1).  Simulated devices by default, a
+real bus with -i/-c/-b.  Python/HIL: :func:`controller.canopen.axis_motion.move`.
 """
 
 from __future__ import annotations
