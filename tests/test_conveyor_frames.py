@@ -128,7 +128,7 @@ def test_theory_of_operation_radius_offset_dr_and_rates():
     assert f.zero(it).pos == pytest.approx((600.0, -350.0, 0.0))
 
 
-def test_type_2_rotary_decoupled_orientation_does_not_follow_the_master():
+def test_theory_of_operation_type_2_rotary_decoupled_orientation_does_not_follow_the_master():
     f = rotary(type_=2)
     p = f.point(item([0.0]), [SourceState(90.0, 20.0)])
     assert p.here.angle_to(f.upstream) < 1e-12
@@ -168,7 +168,9 @@ def test_theory_of_operation_collinear_points_error_when_assigned_to_masterframe
     assert robot.master_frame is None and robot.slave == 0 and f.engaged_by is None
 
 
-def test_linked_frame_uses_its_precalculated_circle():
+def test_theory_of_operation_circle_precalculation_when_tracking_starts():
+    """"At this moment also the circle pre-calculation will be activated (computing the
+    circle center, start & normal vectors)": a linked frame keeps its pre-calculated circle."""
     f = rotary()
     robot = RobotGroup("r", TrackerParams(sample_time_s=T, planner="softmc"))
     robot.master_frame = f

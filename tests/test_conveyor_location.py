@@ -77,7 +77,7 @@ def test_proof_of_concept_qed_identity_with_base_and_tool(base, tool, mf0, mft):
     assert close(setpoint, mft, 1e-8)
 
 
-def test_compound_tracking_formula_leaves_the_path_but_the_page_formula_does_not():
+def test_proof_of_concept_compound_formula_leaves_the_path_but_the_page_formula_does_not():
     """'Proof of concept': Robot_virtual : [MF(t) : MF(0)⁻¹] moves the end point according to
     the virtual robot's orientation (off the conveyor path); ⊕/⊖ does not."""
     mf0 = Location.at(0, 0, 0)

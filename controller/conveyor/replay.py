@@ -19,7 +19,7 @@ then equal the recorded run's bit for bit (tested).
 from __future__ import annotations
 
 import csv
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Sequence
 
@@ -38,6 +38,8 @@ class TriggerEvent:
     values: tuple[float, ...] | None = None
     dr_mm: float = 0.0
     inverse: bool = False
+    #: the line of the trigger log it was read from (None: not read from a file)
+    line: int | None = field(default=None, compare=False, repr=False)
 
 
 def write_encoder_log(path: str | Path, sample_time_s: float,
@@ -98,21 +100,74 @@ def write_trigger_log(path: str | Path, events: Sequence[TriggerEvent]) -> Path:
     return path
 
 
+TRIGGER_LOG_COLUMNS = ("sample", "robot", "frame", "values", "dr_mm", "inverse")
+
+
 def read_trigger_log(path: str | Path) -> list[TriggerEvent]:
+    """The TRIGGERs of a trigger log (:func:`write_trigger_log`), each with its ``line``.
+
+    A bad row raises :class:`ConfigError` naming the file, the line and the column (key).
+    Check the robot and frame columns against a cell with :func:`check_trigger_log`.
+    """
     path = Path(path)
-    rows = list(csv.reader(path.read_text(encoding="utf-8").splitlines()))
-    rows = [r for r in rows if r and not r[0].lstrip().startswith("#")]
-    expected = ["sample", "robot", "frame", "values", "dr_mm", "inverse"]
-    if not rows or [c.strip() for c in rows[0]] != expected:
-        raise ConfigError(f"header must be: {', '.join(expected)}", file=str(path), line=1)
+    lines = path.read_text(encoding="utf-8").splitlines()
+    rows = [(i, r) for i, r in enumerate(csv.reader(lines), start=1)
+            if r and any(c.strip() for c in r) and not r[0].lstrip().startswith("#")]
+    expected = list(TRIGGER_LOG_COLUMNS)
+    if not rows or [c.strip() for c in rows[0][1]] != expected:
+        raise ConfigError(f"header must be: {', '.join(expected)}", file=str(path),
+                          line=rows[0][0] if rows else 1)
     out = []
-    for i, r in enumerate(rows[1:], start=2):
+    prev = 0
+    for i, r in rows[1:]:
+        if len(r) != len(expected):
+            raise ConfigError(f"expected {len(expected)} values ({', '.join(expected)}), got "
+                              f"{len(r)}", file=str(path), line=i)
+
+        def bad(col: str, what: str, i=i) -> ConfigError:
+            return ConfigError(what, file=str(path), line=i, key=col)
+        cell = dict(zip(expected, (c.strip() for c in r)))
         try:
-            vals = tuple(float(x) for x in r[3].split(";")) if r[3].strip() else None
-            out.append(TriggerEvent(int(r[0]), r[1], r[2], vals, float(r[4]), bool(int(r[5]))))
-        except (ValueError, IndexError) as exc:
-            raise ConfigError(f"invalid trigger row: {exc}", file=str(path), line=i) from None
+            sample = int(cell["sample"])
+        except ValueError:
+            raise bad("sample", f"not an integer: {cell['sample']!r}") from None
+        if sample < prev:
+            raise bad("sample", f"sample {sample} is before the previous row's ({prev}): "
+                                "rows must be in sample order")
+        prev = sample
+        for col in ("robot", "frame"):
+            if not cell[col]:
+                raise bad(col, "empty name")
+        try:
+            vals = tuple(float(x) for x in cell["values"].split(";")) if cell["values"] \
+                else None
+        except ValueError:
+            raise bad("values", f"not a ';'-separated list of numbers: "
+                                f"{cell['values']!r}") from None
+        try:
+            dr = float(cell["dr_mm"])
+        except ValueError:
+            raise bad("dr_mm", f"not a number: {cell['dr_mm']!r}") from None
+        if cell["inverse"] not in ("0", "1"):
+            raise bad("inverse", f"must be 0 or 1, got {cell['inverse']!r}")
+        out.append(TriggerEvent(sample, cell["robot"], cell["frame"], vals, dr,
+                                cell["inverse"] == "1", line=i))
     return out
+
+
+def check_trigger_log(events: Sequence[TriggerEvent], robots: Sequence[str],
+                      frames: Sequence[str], path: str | Path | None = None) -> None:
+    """Every TRIGGER's robot and frame must be one of ``robots`` / ``frames`` (the names of
+    the cell it is replayed on): else :class:`ConfigError` naming file, line and column."""
+    file = None if path is None else str(path)
+    for e in events:
+        for col, name, names, what in (("robot", e.robot, robots, "robot group"),
+                                       ("frame", e.frame, frames, "moving frame")):
+            if name not in names:
+                raise ConfigError(
+                    f"{what} {name!r} is not in the scenario (expected "
+                    f"{' or '.join(repr(n) for n in names)})", file=file, line=e.line,
+                    key=col)
 
 
 def replay(cell: ConveyorCell, triggers: Sequence[TriggerEvent], n_samples: int,
@@ -121,8 +176,11 @@ def replay(cell: ConveyorCell, triggers: Sequence[TriggerEvent], n_samples: int,
     """Step ``cell`` ``n_samples`` times, giving each TRIGGER after its sample.
 
     ``on_sample(cell, outputs)`` runs after every step (e.g. a robot program; it must be
-    deterministic too).  Triggers for sample 0 are given before the first step.
+    deterministic too).  Triggers for sample 0 are given before the first step.  A TRIGGER
+    naming a robot or frame the cell does not have raises :class:`ConfigError` (before the
+    first step).
     """
+    check_trigger_log(triggers, [r.name for r in cell.robots], [f.name for f in cell.frames])
     by_sample: dict[int, list[TriggerEvent]] = {}
     for e in triggers:
         by_sample.setdefault(e.sample, []).append(e)

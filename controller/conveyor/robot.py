@@ -203,7 +203,13 @@ class FrameLink:
     # -- items ------------------------------------------------------------------------------
     def _take(self, entry: TriggerEntry, k: int, ev: list[Event]) -> None:
         self.item = entry
-        self.record = self.robot._record(entry)
+        rec = self.record = self.robot._record(entry)
+        if rec.left_sample is not None:
+            # taken again (e.g. MasterFrame = none closed it as SKIPPED while it was the
+            # link's next item, and the program engages it later): it has not left yet
+            rec.left_sample = None
+            if rec.status == ItemStatus.SKIPPED:
+                rec.status = ItemStatus.CAUGHT if rec.caught else ItemStatus.PENDING
         if self.mode == Mode.RELATIVE:
             self.ref = self.geo.zero(entry.dr_mm)
         else:

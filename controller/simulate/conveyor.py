@@ -37,12 +37,13 @@ units" (what the conveyor's axis counts: mm of belt, deg of table, ...).  ``*`` 
         radius_offsets_mm: [0, -30]  #   optional, one per time (rotary: dR)
         csv: items.csv               #   time_s[, dr_mm][, inverse]
         log: triggers.csv            #   replay: sample, robot, frame, values, dr_mm, inverse
+                                     #   (robot, frame: this scenario's names, else an error)
       robot*:
         name: robot
         start*: [300, 350, 100]      # TCP (world) at t = 0: a position or a location
         base: {position: [..], axis: [..], angle_deg: ..}    # robot base frame
         tool: {position: [..], axis: [..], angle_deg: ..}    # tool frame
-        slave: 5                     # 3 | 5
+        slave: 5                     # 3 | 5 (the program: see PickProgram)
         buffer_capacity: 32
         motion: {vel: 800, acc: 8000, jerk: 200000, rot_vel: 180, rot_acc: 1800,
                  rot_jerk: 36000}
@@ -74,8 +75,8 @@ from ..conveyor import (CatchPrediction, ConveyorCell, EncoderSource, Event, Fra
                         Location, MotionLimits, MovingFrame, RobotGroup, SimulatedAxis,
                         TriggerBufferFull, Window)
 from ..conveyor.frame import LINEAR, ROTARY, ROTARY_DECOUPLED, TYPE_NAMES
-from ..conveyor.replay import (TriggerEvent, read_encoder_log, read_trigger_log,
-                               write_encoder_log, write_trigger_log)
+from ..conveyor.replay import (TriggerEvent, check_trigger_log, read_encoder_log,
+                               read_trigger_log, write_encoder_log, write_trigger_log)
 from ..conveyor.sources import quantise_counts
 from ..conveyor.telemetry import ItemRecord
 from ..errors import ConfigError, ParameterError
@@ -297,7 +298,8 @@ def _master(node) -> MasterSpec:
     return MasterSpec(start, node.number("speed", unit="master units/s"), None, enc)
 
 
-def _items(node, duration_s: float) -> tuple[ItemSpec, ...]:
+def _items(node, duration_s: float, n_samples: int, frame: FrameSpec,
+           robot: str) -> tuple[ItemSpec, ...]:
     from .scenario import _check_number
 
     node.check_keys(("trigger_times", "radius_offsets_mm", "csv", "log"))
@@ -333,6 +335,18 @@ def _items(node, duration_s: float) -> tuple[ItemSpec, ...]:
         except OSError as exc:
             raise node.error("log", f"cannot read the trigger log {str(path)!r}: "
                                     f"{exc.strerror or exc}") from None
+        # the log was recorded for one robot and one frame: replaying it on others would
+        # silently run a different cell
+        check_trigger_log(events, [robot], [frame.name], path)
+        for e in events:
+            if not 0 <= e.sample < n_samples:
+                raise ConfigError(f"sample {e.sample} is outside the run (0...{n_samples - 1}"
+                                  f", duration {duration_s:g} s)", file=str(path),
+                                  line=e.line, key="sample")
+            if e.values is not None and len(e.values) != 1:
+                raise ConfigError(f"expected 1 master value (the frame {frame.name!r} has one "
+                                  f"source), got {len(e.values)}", file=str(path),
+                                  line=e.line, key="values")
         return tuple(ItemSpec(0.0, e.dr_mm, e.inverse, e.sample, e.values) for e in events)
     try:
         text = path.read_text(encoding="utf-8")
@@ -421,8 +435,8 @@ def parse_conveyor(root, ctx, source: Path | None) -> ConveyorScenario:
     if master.log is not None and len(master.log) < n + 1:
         raise cn.error("master", f"the encoder log has {len(master.log)} samples, the run "
                                  f"needs {n + 1} (duration {duration:g} s)")
-    items = _items(cn.section("items", required=True), duration)
     robot = _robot(cn.section("robot", required=True))
+    items = _items(cn.section("items", required=True), duration, n, frame, robot.name)
     program = _program(cn.section("program"))
     return ConveyorScenario(params, float(duration), frame, master, items, robot, program,
                             name, source)
@@ -434,12 +448,21 @@ class PickProgram:
 
     idle: the oldest item of the frame in the buffer; with ``predict`` ask
     :meth:`RobotGroup.can_catch` and skip the item (NEXTITEM) when the answer is no; else
-    ``MasterFrame = frame`` and ``MOVES <MF>.zero`` raised by ``approach_mm`` (the item's
-    orientation) -> approach: once synchronised and the move is done, go down
+    ``MasterFrame = frame`` and
+
+    - ``slave = 5`` (relative): ``MOVES <MF>.zero`` raised by ``approach_mm`` (the item's
+      orientation): the tracking adds ``MF(t) ⊖ MF(0)``, so the TCP ends above ``<MF>.here``;
+    - ``slave = 3`` (absolute): no MOVES to ``<MF>.zero`` - the tracker itself brings the
+      TCP onto ``<MF>.here`` (plus the virtual robot's motion since the engage, the
+      reference); once the link has engaged the item (engage), a relative move up by
+      ``approach_mm``, so the robot hovers above the item as with 5;
+
+    -> approach: once synchronised and the move is done, go down
     ``approach_mm`` (relative) -> grip: wait ``dwell_s`` synchronised (the pick) -> lift:
     up again, then ``NEXTITEM`` and ``MasterFrame = none`` and ``MOVES place`` -> place ->
     idle.  "Item missed" (30238) or the item leaving the window during the pick: the motions
-    go on as they are (item 11), then ``MOVES place`` once they are done.
+    go on as they are (item 11), then ``MOVES place`` once they are done; the reason is
+    kept in :attr:`unpicked` (so every caught item is either picked or has a reason).
     """
 
     def __init__(self, robot: RobotGroup, frame: MovingFrame, spec: ProgramSpec,
@@ -455,6 +478,8 @@ class PickProgram:
         self.picks: dict[int, float] = {}
         self.predictions: dict[int, CatchPrediction] = {}
         self.skipped: dict[int, str] = {}
+        #: items the program went for but did not pick, with the reason
+        self.unpicked: dict[int, str] = {}
         self.log: list[tuple[int, str, int | None]] = []
 
     def _say(self, what: str) -> None:
@@ -466,8 +491,13 @@ class PickProgram:
         for e in events:
             if self.item is not None and e.item == self.item.id and \
                     e.kind in ("item_missed", "item_left", "tracker_error") and \
-                    self.state in ("approach", "descend", "grip"):
+                    self.state in ("engage", "approach", "descend", "grip"):
                 self._say(f"{e.kind}: finishing the motions as they are")
+                if self.item.id not in self.picks:
+                    self.unpicked[self.item.id] = \
+                        f"{e.kind.replace('_', ' ')} during the {self.state} at " \
+                        f"{self.robot.k * self.robot.T:.3f} s" + \
+                        (f": {e.message}" if e.message else "")
                 self.state = "recover"
         if self.state == "idle":
             item = r.buffer.current(f.name)
@@ -485,12 +515,25 @@ class PickProgram:
                     return
             if r.master_frame is not f:
                 r.set_master_frame(f, self.slave)
+            if self.slave == 3:
+                # absolute: the tracker brings the TCP onto <MF>.here itself (the virtual
+                # robot at the engage is the reference); no MOVES to <MF>.zero - only the
+                # hover offset, relative, once the link has engaged this item
+                self._say("engage")
+                self.state = "engage"
+                return
             zero = f.zero(item)
             hover = Location(tuple(a + b for a, b in zip(zero.pos, (0.0, 0.0, sp.approach_mm))),
                              zero.ori)
             r.moves(hover, name=f"approach item {item.id}")
             self._say("approach")
             self.state = "approach"
+        elif self.state == "engage":
+            link = r.link_for(f)
+            if link is not None and link.item is self.item and link.ref is not None:
+                r.moves_rel((0.0, 0.0, sp.approach_mm), name=f"hover over item {self.item.id}")
+                self._say("approach")
+                self.state = "approach"
         elif self.state == "approach":
             if r.imfs == Imfs.SYNCHRONIZED and not v.busy:
                 r.moves_rel((0.0, 0.0, -sp.approach_mm), name=f"down to item {self.item.id}")
@@ -548,6 +591,8 @@ class ConveyorResult:
     robot: RobotGroup
     triggers: list[TriggerEvent] = field(default_factory=list)
     encoder_log: list[int] | None = None
+    #: items the program went for (or that were caught) but not picked: {id: reason}
+    unpicked: dict[int, str] = field(default_factory=dict)
 
     @property
     def sample_time_s(self) -> float:
@@ -563,6 +608,19 @@ class ConveyorResult:
     @property
     def missed(self) -> int:
         return self.count("missed")
+
+    def item_coords(self, item_id: int, k: int) -> tuple[float, ...]:
+        """The item's frame coordinates at sample ``k`` (mm / deg from its trigger)."""
+        t_ev = self.triggers[[r.item_id for r in self.records].index(item_id)]
+        return tuple(self.frame.geometry().coords([self.master_value[k]], t_ev.values))
+
+    def item_position(self, item_id: int, k: int) -> np.ndarray:
+        """Where item ``item_id`` is at sample ``k`` (``<MF>.here`` of its trigger, world)."""
+        t_ev = self.triggers[[r.item_id for r in self.records].index(item_id)]
+        geo = self.frame.geometry()
+        c = geo.coords([self.master_value[k]], t_ev.values)
+        z = (0.0,) * geo.nof
+        return np.array(geo.point(c, z, z, t_ev.dr_mm).here.pos)
 
 
 def _master_fn(m: MasterSpec):
@@ -671,6 +729,14 @@ def run_conveyor(sc: ConveyorScenario) -> ConveyorResult:
         cur.append(link.item.id if link is not None and link.item is not None else 0)
         mval.append(frame.master[0].pos)
 
+    unpicked = dict(program.unpicked)
+    for rid in sorted(robot.records):
+        rec = robot.records[rid]
+        if rec.caught and rid not in program.picks and rid not in unpicked:
+            unpicked[rid] = (f"the run ended before the pick (program state "
+                             f"{program.state!r})" if program.item is not None and
+                             program.item.id == rid else "caught, but the program did "
+                             "not go for it")
     mv = np.array(mval)
     geo = frame.geometry()
     paths: dict[int, tuple[np.ndarray, np.ndarray]] = {}
@@ -692,7 +758,8 @@ def run_conveyor(sc: ConveyorScenario) -> ConveyorResult:
         records=[robot.records[i] for i in sorted(robot.records)], picks=program.picks,
         predictions=program.predictions, skipped=program.skipped, item_paths=paths,
         frame=frame, robot=robot, triggers=triggers,
-        encoder_log=list(source.log) if isinstance(source, EncoderSource) else None)
+        encoder_log=list(source.log) if isinstance(source, EncoderSource) else None,
+        unpicked=unpicked)
 
 
 # -- outputs --------------------------------------------------------------------------------

@@ -162,6 +162,22 @@ def plot_result(result: SimulationResult, path: str | Path, *, dpi: int = 110) -
 
 
 # -- conveyor scenarios ------------------------------------------------------------------
+def marker_points(result) -> tuple[dict[int, np.ndarray], dict[int, np.ndarray]]:
+    """The conveyor plot's markers: {item: TCP at its pick} and {item: where the item was
+    at its "Item missed" (30238), i.e. at the window exit} (world, mm)."""
+    r = result
+    T = r.sample_time_s
+    picked: dict[int, np.ndarray] = {}
+    missed: dict[int, np.ndarray] = {}
+    for rec in r.records:
+        if rec.item_id in r.picks:
+            k = int(round(r.picks[rec.item_id] / T))
+            picked[rec.item_id] = np.asarray(r.setpoint_pos[k])
+        elif rec.missed_sample is not None:
+            missed[rec.item_id] = r.item_position(rec.item_id, rec.missed_sample)
+    return picked, missed
+
+
 def plot_conveyor_result(result, path: str | Path, *, dpi: int = 110) -> Path:
     """PNG of a conveyor scenario.
 
@@ -209,18 +225,10 @@ def plot_conveyor_result(result, path: str | Path, *, dpi: int = 110) -> Path:
     ax.plot(zero.pos[0], zero.pos[1], "s", color="k", ms=5, label="trigger point (MF.zero)")
     for rid, (ts, pts) in r.item_paths.items():
         ax.plot(pts[:, 0], pts[:, 1], color="0.6", lw=0.6)
-    picked_x, picked_y, missed_x, missed_y = [], [], [], []
     T = r.sample_time_s
-    for rec in r.records:
-        if rec.item_id in r.picks:
-            k = int(round(r.picks[rec.item_id] / T))
-            picked_x.append(r.setpoint_pos[k, 0])
-            picked_y.append(r.setpoint_pos[k, 1])
-        elif rec.missed_sample is not None:
-            ts, pts = r.item_paths[rec.item_id]
-            j = int(np.argmin(np.abs(ts - rec.missed_sample * T)))
-            missed_x.append(pts[j, 0])
-            missed_y.append(pts[j, 1])
+    picked, missed = marker_points(r)
+    picked_x, picked_y = [p[0] for p in picked.values()], [p[1] for p in picked.values()]
+    missed_x, missed_y = [p[0] for p in missed.values()], [p[1] for p in missed.values()]
     ax.plot(r.virtual_pos[:, 0], r.virtual_pos[:, 1], ":", color="tab:blue", lw=0.8,
             label="virtual robot")
     ax.plot(r.setpoint_pos[:, 0], r.setpoint_pos[:, 1], color="tab:blue", lw=1.3,
