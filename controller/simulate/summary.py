@@ -203,12 +203,15 @@ def format_conveyor_summary(result) -> str:
     if rows:
         lines += _table(["item", "trigger", "entered", "synced", "to sync", "peak err",
                          "err synced", "osc", "status", "picked", "prediction"], rows, left=1)
-        lines.append("  (times in s; peak err: largest |target - contribution| while "
-                     "approaching [mm]; err synced: while synchronised [mm];")
+        lines.append("  (times in s; entered: when the robot's frame link took the item in its "
+                     "window; peak err: largest")
+        lines.append("   |target - contribution| while approaching [mm]; err synced: while "
+                     "synchronised [mm];")
         lines.append("   osc: sign flips of the velocity error during the approach)")
-    notes = [(rid, why) for rid, why in r.skipped.items()]
-    for rid, why in notes:
+    for rid, why in r.skipped.items():
         lines.append(f"  item {rid} skipped: {why}")
+    for rid, why in sorted(getattr(r, "unpicked", {}).items()):
+        lines.append(f"  item {rid} not picked: {why}")
     errs = [e for e in r.events if e.kind in ("item_missed", "tracker_error", "command_error")]
     if errs:
         lines.append("")
