@@ -120,8 +120,8 @@ def test_model_description_contract(tracker_fmu):
         "vel_desync_rot": ("parameter", "tunable", "Real", 360, "deg/s"),
         "acc_desync_rot": ("parameter", "tunable", "Real", 3600, "deg/s2"),
         "jerk_desync_rot": ("parameter", "tunable", "Real", 72000, "deg/s3"),
-        "filter_factor": ("parameter", "tunable", "Real", 1, None),
-        "damping_factor": ("parameter", "tunable", "Real", 1, None),
+        "filter_factor": ("parameter", "tunable", "Real", 1, "1"),  # dimensionless
+        "damping_factor": ("parameter", "tunable", "Real", 1, "1"),
         # the contract says 10: the start value follows the core's default instead
         # (TrackerParams.max_flops, now 6 in a 3 s window)
         "max_flops": ("parameter", "tunable", "Integer", TrackerParams().max_flops, None),
@@ -154,7 +154,8 @@ def test_model_description_contract(tracker_fmu):
             assert float(x.start) == start, name
         assert x.unit == unit, name
         assert x.description, name
-    # every Real has a unit unless dimensionless; enumerations are documented
+    # every Real has a unit ("1" when dimensionless); enumerations are documented
+    assert all(x.unit for x in md.modelVariables if x.type == "Real")
     assert "2 SYNCED" in v["state"].description and "-1 DESYNCING" in v["imfs"].description
     assert "1 MASTER_VELOCITY" in v["error"].description
     outputs = [x for x in md.modelVariables if x.causality == "output"]

@@ -3,6 +3,8 @@ state, refused step (fmi3Discard), exception (fmi3Error with the traceback)."""
 
 from __future__ import annotations
 
+import logging
+
 import pytest
 
 pytest.importorskip("pythonfmu3")
@@ -42,7 +44,11 @@ PLANNER = 1 if _optimal_available() else 0
 
 @pytest.fixture(scope="session")
 def fmu3(tmp_path_factory):
-    return build_tracker_fmu3(tmp_path_factory.mktemp("fmu3"))
+    """Built once per session (test_fmu_robustness.py uses the same folder)."""
+    d = tmp_path_factory.getbasetemp() / "fmu3-build"
+    if not (d / "CanTracker3.fmu").is_file():
+        build_tracker_fmu3(d)
+    return d / "CanTracker3.fmu"
 
 
 class Fmu3:
@@ -119,7 +125,9 @@ def test_fmi3_bit_identical_to_core_and_state(fmu3):
         f.close()
 
 
-def test_fmi3_exception_gives_error_with_traceback(fmu3, monkeypatch):
+def test_fmi3_exception_gives_error_with_traceback(fmu3, monkeypatch, caplog):
+    """fmi3Error with the traceback in the importer's logMessage; the Python logger has it too
+    but at DEBUG only (pythonfmu3 always forwards errors: no second copy on stderr)."""
     f = Fmu3(fmu3, planner=0)
     try:
         f.run(conveyor_scenario(T), 0, 10)
@@ -128,10 +136,14 @@ def test_fmi3_exception_gives_error_with_traceback(fmu3, monkeypatch):
             raise RuntimeError("injected failure")
 
         monkeypatch.setattr(Tracker, "update", broken)
-        with pytest.raises(FMICallException) as exc:
-            f.run(conveyor_scenario(T), 10, 1)
+        with caplog.at_level(logging.DEBUG, logger="cantrack.fmu"):
+            with pytest.raises(FMICallException) as exc:
+                f.run(conveyor_scenario(T), 10, 1)
         assert exc.value.status == 3  # fmi3Error
         status, text = f.messages[-1]
         assert status == 3 and "Traceback" in text and "RuntimeError: injected failure" in text
+        assert not text.endswith("\n")
+        (record,) = [r for r in caplog.records if r.name == "cantrack.fmu"]
+        assert record.levelno == logging.DEBUG and record.getMessage() == text
     finally:
         f.close()

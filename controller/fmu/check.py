@@ -2,16 +2,18 @@
 
 Checks, in order (each one a line of the report):
 
-1. the file is an FMU (zip with a modelDescription.xml) of FMI 2.0 Co-Simulation;
+1. the file is an FMU (zip with a modelDescription.xml);
 2. ``fmpy validate`` (schema, names, start values, causality/variability/initial, units,
    Outputs and InitialUnknowns) finds no problem;
 3. ``fmutool -check`` (fmu_manipulation_toolbox; XSD + semantic rules) finds no error
    (skipped with a note when the toolbox is not installed);
-4. for a CanTracker FMU, a smoke co-simulation in fmpy: a conveyor master at 300 mm/s along X
+4. for a CanTracker Co-Simulation FMU (FMI 2.0 ``CanTracker.fmu`` or FMI 3.0
+   ``CanTracker3.fmu``), a smoke co-simulation in fmpy: a conveyor master at 300 mm/s along X
    (+ 20 deg/s), engaged from 0.1 s to 1.0 s, 1.5 s at the sample time: the tracker must
    synchronise (state 2) without error and be OFF at the end; the outputs must be
    bit-identical to ``controller.tracking.Tracker`` run directly (the installed core);
-5. a step that is not a multiple of ``sample_time`` must be refused (fmi2Discard);
+5. a step that is not a multiple of ``sample_time`` must be refused (fmi2Discard /
+   fmi3Discard);
 6. FMU state: replay after getFMUstate/setFMUstate and after serialize/deserialize must be
    bit-identical.
 """
@@ -123,9 +125,9 @@ def check_fmu(path: str | Path, *, smoke: bool = True, planner: int | None = Non
             output if ok is None else "\n".join(errors or output.splitlines()[-5:])))
     if not smoke:
         return report
-    if md.fmiVersion != "2.0" or md.coSimulation is None or not _is_tracker(md):
+    if md.fmiVersion not in ("2.0", "3.0") or md.coSimulation is None or not _is_tracker(md):
         report.add("smoke co-simulation", None,
-                   "only for CanTracker FMI 2.0 Co-Simulation FMUs")
+                   "only for CanTracker FMI 2.0 / 3.0 Co-Simulation FMUs")
         return report
     _smoke(report, path, md, planner)
     return report
@@ -135,7 +137,8 @@ def _param_starts(md) -> dict:
     starts = {}
     for v in md.modelVariables:
         if v.causality == "parameter" and v.start is not None:
-            starts[v.name] = (float(v.start) if v.type == "Real" else int(v.start))
+            starts[v.name] = (float(v.start) if v.type in ("Real", "Float64")
+                              else int(v.start))
     return starts
 
 
@@ -194,7 +197,8 @@ def _smoke(report: CheckReport, path: Path, md, planner: int | None) -> None:
         except FMICallException as exc:
             logged = any("whole multiple" in m for _, _, m in fmu.messages)
             report.add("step-size refusal", exc.status == 2 and logged,
-                       f"a step of {1.5 * T:g} s gives status {exc.status} (2 = fmi2Discard)"
+                       f"a step of {1.5 * T:g} s gives status {exc.status} (2 = "
+                       f"fmi{'3' if fmu.fmi3 else '2'}Discard)"
                        + ("" if logged else "; the refusal was not logged"))
         finally:
             fmu_log.disabled = disabled
@@ -219,19 +223,19 @@ def _state_check(report, fmu, scenario, k0, T) -> None:
     from fmpy.fmi1 import FMICallException
 
     try:
-        state = fmu.slave.getFMUstate()
+        state = fmu.get_state()
         t_saved = fmu.time
         a = fmu.run(scenario, 200, T, first_step=k0)
-        fmu.slave.setFMUstate(state)
+        fmu.set_state(state)
         fmu.time = t_saved
         b = fmu.run(scenario, 200, T, first_step=k0)
-        blob = fmu.slave.serializeFMUstate(state)
-        fmu.slave.freeFMUstate(state)
-        restored = fmu.slave.deSerializeFMUstate(blob)
-        fmu.slave.setFMUstate(restored)
+        blob = fmu.serialize_state(state)
+        fmu.free_state(state)
+        restored = fmu.deserialize_state(blob)
+        fmu.set_state(restored)
         fmu.time = t_saved
         c = fmu.run(scenario, 200, T, first_step=k0)
-        fmu.slave.freeFMUstate(restored)
+        fmu.free_state(restored)
         ok = a.reals == b.reals == c.reals and a.ints == b.ints == c.ints
         report.add("FMU state", ok, f"get/set and serialize ({len(blob)} bytes)/deserialize "
                    f"replays {'bit-identical' if ok else 'DIFFER'}")

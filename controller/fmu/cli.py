@@ -45,7 +45,8 @@ def _add_subcommands(fmu: argparse.ArgumentParser) -> None:
                    help="also write CanTracker3.fmu (FMI 3.0, needs pythonfmu3)")
     c = sub.add_parser("check", help="validate an FMU and run a smoke co-simulation",
                        description="Validate FILE.fmu (fmpy validate, fmutool -check) and, for "
-                                   "a CanTracker FMU, run a smoke co-simulation in fmpy "
+                                   "a CanTracker FMU (FMI 2.0 or 3.0), run a smoke "
+                                   "co-simulation in fmpy "
                                    "(sync, bit-identity with the core, step refusal, state).")
     c.add_argument("file", metavar="FILE.fmu")
     c.add_argument("--planner", type=int, choices=(0, 1), default=None,

@@ -22,25 +22,44 @@ current parameters, starting from the current setpoint, and engages it with ``mo
 falling edge starts the de-sync.  Both act at the first internal sample of the step.  So
 tunable parameters take effect at the next engage.
 
+Fixed parameters (``variability=fixed``: sample_time, mode, planner, x0, y0, z0, c0) are
+frozen at exitInitializationMode; every engage uses the frozen values plus the current
+tunables.  Setting a fixed parameter afterwards is refused: logged as an error naming the
+variable and the value, and ignored (the setter cannot return an error status: pythonfmu and
+pythonfmu3 turn any exception in a setter into Fatal); setting it to the value it already
+has is accepted silently.  Reset the instance to change them.
+
+Master inputs must be finite: a step that starts with a NaN or infinite master input is
+refused (``Discard`` in FMI 2 and FMI 3) before anything changes, with an error naming the
+inputs and their values; outputs, tracker state, engage edge and time stay as they were, so
+the importer can set finite values and repeat the step (or restore a saved FMU state).  The
+instance is not failed.  (Not treated as a lost master, ``MASTER_LOST``: a non-finite value
+in a co-simulation is a modelling or connection fault the importer should see, not a
+physical event to ride through.)
+
 State: ``get_state`` / ``set_state`` save and restore *all* internal state (the whole
 ``Tracker`` incl. planners, every variable value, the last engage value, the failure flag);
 a state can be restored any number of times.  The serialized form is a pickle (trust only
 states you saved yourself).
 
-Errors: every message goes to the FMI logger (category ``logStatusError``; pythonfmu
-forwards messages only when the importer instantiated with loggingOn=true) and to the Python
-logger ``cantrack.fmu`` (a Python host prints it on stderr).  An exception inside a step is
-logged with its traceback and the step is refused (FMI 2: ``fmi2Discard``, pythonfmu has no
-other status; FMI 3: ``fmi3Error``); the instance then refuses further steps (each refusal
-repeats the first error) until a saved FMU state is set or it is reset, because its
-internal state may be half-updated.  An invalid tunable parameter at an engage edge is found
-before anything changes: that step is refused (``Discard``) and may be repeated after fixing
-the value.  Errors at initialisation (invalid fixed parameter, planner that cannot be
-loaded) are logged with the traceback and every step is refused with that message; they are
-not raised, because pythonfmu turns an exception into ``Fatal`` and then crashes the process
-on ``Terminate`` / ``FreeInstance`` (pythonfmu 0.7.0, pythonfmu3 0.3.4).  A step size that
-is not a whole multiple of ``sample_time`` is refused (``Discard``) without failing the
-instance.
+Errors: every message goes to the FMI logger (category ``logStatusError``) and to the Python
+logger ``cantrack.fmu``.  FMI 2 (pythonfmu) forwards messages only when the importer
+instantiated with loggingOn=true, which the slave cannot see: the Python logger gets them at
+ERROR (a Python host without logging configuration prints them on stderr).  FMI 3
+(pythonfmu3) forwards errors and warnings whatever loggingOn: the Python logger gets them at
+DEBUG only (no second copy on stderr).  Messages carry no trailing line break.
+
+An exception inside a step is logged with its traceback and the step is refused (FMI 2:
+``fmi2Discard``, pythonfmu has no other status; FMI 3: ``fmi3Error``); the instance then
+refuses further steps (each refusal repeats the first error) until a saved FMU state is set
+or it is reset, because its internal state may be half-updated.  An invalid tunable parameter
+at an engage edge is found before anything changes: that step is refused (``Discard``) and
+may be repeated after fixing the value.  Errors at initialisation (invalid fixed parameter,
+planner that cannot be loaded) are logged with the traceback and every step is refused with
+that message; they are not raised, because pythonfmu turns an exception into ``Fatal`` and
+then crashes the process on ``Terminate`` / ``FreeInstance`` (pythonfmu 0.7.0, pythonfmu3
+0.3.4).  A step size that is not a whole multiple of ``sample_time`` is refused (``Discard``)
+without failing the instance.
 """
 
 from __future__ import annotations
@@ -94,6 +113,7 @@ def _enum_doc(enum) -> str:
 
 #: Units: name -> (exponents of SI base units, factor to the SI unit)
 UNITS: dict[str, tuple[dict[str, int], float]] = {
+    "1": ({}, 1.0),  # dimensionless (filter_factor, damping_factor)
     "s": ({"s": 1}, 1.0),
     "mm": ({"m": 1}, 1e-3),
     "mm/s": ({"m": 1, "s": -1}, 1e-3),
@@ -106,6 +126,10 @@ UNITS: dict[str, tuple[dict[str, int], float]] = {
 }
 
 _sync, _rot = _DEFAULTS.sync_trans, _DEFAULTS.sync_rot
+
+#: ``min`` of the parameters that must be > 0 (FMI bounds are inclusive: 0 itself is still
+#: refused at engage, with a logged error naming the value)
+_POSITIVE = {"min": "0"}
 
 #: The FMU's variables, in value-reference order: (name, type, causality, variability, start,
 #: unit, description, extra XML attributes).  Outputs have no start (initial=calculated).
@@ -122,42 +146,42 @@ VARIABLES: list[tuple] = [
      + " (1 = the default planner, needs ruckig)", {"min": "0", "max": "1"}),
     # -- tunable parameters (take effect at the next engage)
     ("vel_sync", "Real", "parameter", "tunable", _sync.vel, "mm/s",
-     "VelocitySyncTran: translation velocity limit while synchronising (next engage)", {}),
+     "VelocitySyncTran: translation velocity limit while synchronising (next engage)", _POSITIVE),
     ("acc_sync", "Real", "parameter", "tunable", _sync.acc, "mm/s2",
-     "AccelerationSyncTran: translation acceleration limit while synchronising", {}),
+     "AccelerationSyncTran: translation acceleration limit while synchronising", _POSITIVE),
     ("jerk_sync", "Real", "parameter", "tunable", _sync.jerk, "mm/s3",
-     "JerkSyncTran: translation jerk limit while synchronising", {}),
+     "JerkSyncTran: translation jerk limit while synchronising", _POSITIVE),
     ("vel_desync", "Real", "parameter", "tunable", _sync.vel, "mm/s",
-     "VelocityDeSyncTran: translation velocity limit of the de-sync", {}),
+     "VelocityDeSyncTran: translation velocity limit of the de-sync", _POSITIVE),
     ("acc_desync", "Real", "parameter", "tunable", _sync.acc, "mm/s2",
-     "AccelerationDeSyncTran: translation deceleration of the de-sync", {}),
+     "AccelerationDeSyncTran: translation deceleration of the de-sync", _POSITIVE),
     ("jerk_desync", "Real", "parameter", "tunable", _sync.jerk, "mm/s3",
-     "JerkDeSyncTran: translation jerk of the de-sync", {}),
+     "JerkDeSyncTran: translation jerk of the de-sync", _POSITIVE),
     ("vel_sync_rot", "Real", "parameter", "tunable", _rot.vel, "deg/s",
-     "VelocitySyncRot: rotation velocity limit while synchronising", {}),
+     "VelocitySyncRot: rotation velocity limit while synchronising", _POSITIVE),
     ("acc_sync_rot", "Real", "parameter", "tunable", _rot.acc, "deg/s2",
-     "AccelerationSyncRot: rotation acceleration limit while synchronising", {}),
+     "AccelerationSyncRot: rotation acceleration limit while synchronising", _POSITIVE),
     ("jerk_sync_rot", "Real", "parameter", "tunable", _rot.jerk, "deg/s3",
-     "JerkSyncRot: rotation jerk limit while synchronising", {}),
+     "JerkSyncRot: rotation jerk limit while synchronising", _POSITIVE),
     ("vel_desync_rot", "Real", "parameter", "tunable", _rot.vel, "deg/s",
-     "VelocityDeSyncRot: rotation velocity limit of the de-sync", {}),
+     "VelocityDeSyncRot: rotation velocity limit of the de-sync", _POSITIVE),
     ("acc_desync_rot", "Real", "parameter", "tunable", _rot.acc, "deg/s2",
-     "AccelerationDeSyncRot: rotation deceleration of the de-sync", {}),
+     "AccelerationDeSyncRot: rotation deceleration of the de-sync", _POSITIVE),
     ("jerk_desync_rot", "Real", "parameter", "tunable", _rot.jerk, "deg/s3",
-     "JerkDeSyncRot: rotation jerk of the de-sync", {}),
+     "JerkDeSyncRot: rotation jerk of the de-sync", _POSITIVE),
     ("filter_factor", "Real", "parameter", "tunable", _DEFAULTS.filter_factor, "1",
-     "MF.FilterFactor g (> 0): synchronised when |dv| <= g*A*T and |dp| <= g*A*T^2", {}),
+     "MF.FilterFactor g (> 0): synchronised when |dv| <= g*A*T and |dp| <= g*A*T^2", _POSITIVE),
     ("damping_factor", "Real", "parameter", "tunable", _DEFAULTS.damping_factor, "1",
-     "MF.DampingFactor (> 0): multiplies the softmc time-to-reach estimate", {}),
+     "MF.DampingFactor (> 0): multiplies the softmc time-to-reach estimate", _POSITIVE),
     ("max_flops", "Integer", "parameter", "tunable", _DEFAULTS.max_flops, None,
      "MF.MaxFlops (>= 1): more large velocity-error sign flips than this within "
      f"{_DEFAULTS.max_flops_time_s:g} s during the approach is an over-oscillation (error 3)",
      {"min": "1"}),
     ("vel_max_master", "Real", "parameter", "tunable", _DEFAULTS.master_max_trans.vel, "mm/s",
-     "MF.VelocityMaxTrans: a faster master is error 1 and starts the de-sync", {}),
+     "MF.VelocityMaxTrans: a faster master is error 1 and starts the de-sync", _POSITIVE),
     ("acc_max_master", "Real", "parameter", "tunable", _DEFAULTS.master_max_trans.acc, "mm/s2",
      "MF.AccelerationMaxTrans: a master accelerating harder is error 2 and starts the de-sync",
-     {}),
+     _POSITIVE),
     ("x0", "Real", "parameter", "fixed", 0.0, "mm", "Robot X before tracking (initial setpoint)",
      {}),
     ("y0", "Real", "parameter", "fixed", 0.0, "mm", "Robot Y before tracking (initial setpoint)",
@@ -213,6 +237,10 @@ _OUT_FIRST = VR["x"]  # x y z c vx vy vz vc ax ay az ac imfs state error, contig
 assert [row[0] for row in VARIABLES[_OUT_FIRST:]] == [
     "x", "y", "z", "c", "vx", "vy", "vz", "vc", "ax", "ay", "az", "ac", "imfs", "state", "error"]
 _PARAMETER_NAMES = [row[0] for row in VARIABLES if row[2] == "parameter"]
+#: fixed parameters: settable only until ``exitInitializationMode``
+_FIXED = [(i, row[0]) for i, row in enumerate(VARIABLES) if row[3] == "fixed"]
+_FIXED_VRS = frozenset(i for i, _ in _FIXED)
+_TUNABLE_NAMES = [row[0] for row in VARIABLES if row[2] == "parameter" and row[3] != "fixed"]
 _VR_ENGAGE = VR["engage"]
 #: outputs whose initial value depends on a parameter (InitialUnknowns dependencies)
 INITIAL_DEPENDENCIES = {"x": "x0", "y": "y0", "z": "z0", "c": "c0"}
@@ -255,24 +283,32 @@ OK, DISCARD, ERROR = 0, 2, 3
 class TrackerEngine:
     """The tracker behind one FMU instance (FMI-version independent).
 
-    ``report(message, warning)`` logs to the importer; the engine also logs to ``LOG``.
+    ``report(message, warning)`` logs to the importer; the engine also logs to ``LOG``, at
+    ERROR/WARNING unless ``importer_sees_errors`` (the FMI wrapper forwards every error and
+    warning to the importer's logger whatever loggingOn: pythonfmu3), then at DEBUG only, so
+    a Python importer does not print each message twice.
     ``do_step`` returns ``OK``, ``DISCARD`` (refused, nothing changed or failed earlier) or
     ``ERROR`` (an exception: logged with its traceback; the instance is failed).
     """
 
     def __init__(self, instance_name: str, build_id: str,
-                 report: Callable[[str, bool], None]) -> None:
+                 report: Callable[[str, bool], None], importer_sees_errors: bool = False) -> None:
         self.instance_name = instance_name
         self.build_id = build_id
         self._fmi_report = report
+        self._log_levels = ((logging.DEBUG, logging.DEBUG) if importer_sees_errors
+                            else (logging.ERROR, logging.WARNING))
         self.v: list = [row[4] for row in VARIABLES]
         self.by_type: dict[str, frozenset[int]] = {
             t: frozenset(i for i, row in enumerate(VARIABLES) if row[1] == t)
             for t in ("Real", "Integer", "Boolean")}
-        self.settable: dict[str, frozenset[int]] = {
-            t: frozenset(i for i, row in enumerate(VARIABLES)
-                         if row[1] == t and row[2] != "output")
-            for t in ("Real", "Integer", "Boolean")}
+        #: value references the importer may set now, per type (updated in place: the slaves
+        #: keep a reference to this dict); fixed parameters leave it at exitInitializationMode
+        self.settable: dict[str, frozenset[int]] = {}
+        self.initialized = False
+        #: the fixed parameter values frozen at exitInitializationMode (name -> value)
+        self.fixed: dict[str, object] | None = None
+        self._update_settable()
         self.t0 = 0.0
         self.time = 0.0
         self.failed: str | None = None
@@ -284,8 +320,9 @@ class TrackerEngine:
 
     # -- logging ----------------------------------------------------------------------
     def report(self, msg: str, warning: bool = False) -> None:
+        msg = msg.rstrip()  # one line break at the end is the importer's / handler's job
         self._fmi_report(msg, warning)
-        LOG.log(logging.WARNING if warning else logging.ERROR, msg)
+        LOG.log(self._log_levels[1 if warning else 0], msg)
 
     def _log_error(self, what: str) -> str:
         msg = f"{self.instance_name}: {what}\n{traceback.format_exc()}"
@@ -303,8 +340,47 @@ class TrackerEngine:
                                a[0], a[1], a[2], sp.ang_acc, int(imfs), int(state), int(error))
 
     def current_params(self) -> TrackerParams:
+        """The fixed parameters as frozen at initialisation (current values before it) plus
+        the current tunable parameters."""
         v = self.v
-        return tracker_params({n: v[VR[n]] for n in _PARAMETER_NAMES})
+        values = {n: v[VR[n]] for n in _TUNABLE_NAMES}
+        values.update(self.fixed if self.fixed is not None
+                      else {n: v[vr] for vr, n in _FIXED})
+        return tracker_params(values)
+
+    def _update_settable(self) -> None:
+        excluded = _FIXED_VRS if self.initialized else frozenset()
+        self.settable.update({
+            t: frozenset(i for i, row in enumerate(VARIABLES)
+                         if row[1] == t and row[2] != "output" and i not in excluded)
+            for t in ("Real", "Integer", "Boolean")})
+
+    def _freeze(self, initialized: bool) -> None:
+        self.initialized = initialized
+        self.fixed = {n: self.v[vr] for vr, n in _FIXED} if initialized else None
+        self._update_settable()
+
+    def set_values(self, kind: str, vrs, values, convert) -> None:
+        """The slow path of setXXX (a reference that is not settable now): a fixed parameter
+        after initialisation is refused -- logged as an error naming it, the value ignored
+        (pythonfmu/pythonfmu3 turn any exception in a setter into Fatal, so no error status
+        can be returned); setting it to the value it has is accepted silently.  Any other
+        reference that is not a settable ``kind`` raises TypeError (Fatal)."""
+        v = self.v
+        for vr, value in zip(vrs, values):
+            if vr in self.settable[kind]:
+                v[vr] = convert(value)
+                continue
+            if self.initialized and vr in _FIXED_VRS and vr in self.by_type[kind]:
+                value = convert(value)
+                if value != v[vr]:
+                    name = VARIABLES[vr][0]
+                    self.report(f"{self.instance_name}: {name}={value!r} refused and ignored: "
+                                f"{name} is a fixed parameter, settable only before "
+                                f"exitInitializationMode; the instance keeps {name}="
+                                f"{v[vr]!r} (reset the instance to change it)")
+                continue
+            self.check(kind, [vr], settable=True)
 
     def refresh_initial(self) -> None:
         """Before initialisation ends the outputs follow x0..c0 (InitialUnknowns)."""
@@ -325,8 +401,14 @@ class TrackerEngine:
         self.t0 = self.time = float(start_time)
 
     def exit_initialization(self) -> None:
-        """Create the tracker.  Errors are logged and fail the instance (not raised)."""
+        """Freeze the fixed parameters and create the tracker.  Errors are logged and fail
+        the instance (not raised)."""
+        self._freeze(True)
         try:
+            bad = [f"{n}={self.fixed[n]!r}" for n in ("x0", "y0", "z0", "c0")
+                   if not math.isfinite(self.fixed[n])]
+            if bad:
+                raise ParameterError(f"non-finite initial position {', '.join(bad)}")
             params = self.current_params()
             if params.planner == "optimal" and OPTIMAL_IMPORT_ERROR is not None:
                 raise ImportError("planner=1 (optimal) cannot be loaded (is ruckig installed "
@@ -357,8 +439,18 @@ class TrackerEngine:
                         f"{STEP_TOLERANCE:g}); use stepSize {T!r} s (DefaultExperiment) or "
                         f"a multiple")
             return DISCARD
+        master = _get_master(self.v)
+        if not math.isfinite(sum(master)):  # one test for all; the sum overflows rarely
+            bad = [f"{VARIABLES[vr][0]}={x!r}" for vr, x in zip(_MASTER, master)
+                   if not math.isfinite(x)]
+            if bad:
+                self.report(f"{self.instance_name}: step at t={current_time!r} s refused: "
+                            f"non-finite master input {', '.join(bad)}; nothing changed "
+                            f"(outputs and tracker state as at t={self.time!r} s): set finite "
+                            f"values and repeat the step, or restore a saved FMU state")
+                return DISCARD
         try:
-            self._step(n, T)
+            self._step(n, T, master)
         except ParameterError as exc:
             # raised before any state changed: the step can be repeated with a valid value
             self._log_error(f"step at t={current_time!r} s refused, a tunable parameter is "
@@ -372,7 +464,7 @@ class TrackerEngine:
         self.time = current_time + step_size
         return OK
 
-    def _step(self, n: int, T: float) -> None:
+    def _step(self, n: int, T: float, master_values: tuple) -> None:
         tracker = self.tracker
         v = self.v
         engage = bool(v[_VR_ENGAGE])
@@ -385,7 +477,7 @@ class TrackerEngine:
             else:
                 tracker.disengage()
             self.engage_prev = engage
-        mx, my, mz, mvx, mvy, mvz, max_, may, maz, mc, mvc, mac = _get_master(v)
+        mx, my, mz, mvx, mvy, mvz, max_, may, maz, mc, mvc, mac = master_values
         master = MotionState((mx, my, mz), (mvx, mvy, mvz), (max_, may, maz), mc, mvc, mac)
         update = tracker.update
         if n == 1:
@@ -405,7 +497,7 @@ class TrackerEngine:
         return {"format": STATE_FORMAT, "build": self.build_id, "values": list(self.v),
                 "tracker": None if self.tracker is None else self.tracker.snapshot(),
                 "params": self.params, "engage_prev": self.engage_prev, "t0": self.t0,
-                "time": self.time, "failed": self.failed}
+                "time": self.time, "failed": self.failed, "initialized": self.initialized}
 
     def set_state(self, state: dict) -> None:
         """Restore a state of ``get_state`` (copied: it can be restored again).  An unusable
@@ -430,6 +522,8 @@ class TrackerEngine:
         self.engage_prev = state["engage_prev"]
         self.t0, self.time = state["t0"], state["time"]
         self.failed = state["failed"]
+        # states of builds without the flag were saved after initialisation (a tracker)
+        self._freeze(bool(state.get("initialized", tracker is not None)))
 
     @staticmethod
     def state_to_bytes(state: dict) -> bytes:

@@ -1,10 +1,10 @@
-"""Drive ``CanTracker.fmu`` with fmpy, and the same run with the core directly.
+"""Drive ``CanTracker.fmu`` / ``CanTracker3.fmu`` with fmpy, and the same run with the core.
 
-:class:`FmuTracker` wraps fmpy's ``FMU2Slave`` (value references resolved by name, log
-messages captured); :func:`core_run` is the reference: ``controller.tracking.Tracker`` fed
-the same master states, extrapolated the same way (``MotionState.extrapolated(i*T)`` from
-the step start).  Used by ``cantrack fmu check``, the cross-check generator, the FMU tests
-and ``benchmarks/fmu.py``.
+:class:`FmuTracker` wraps fmpy's ``FMU2Slave`` or ``FMU3Slave`` (chosen by the FMU's
+fmiVersion; value references resolved by name, log messages captured); :func:`core_run` is
+the reference: ``controller.tracking.Tracker`` fed the same master states, extrapolated the
+same way (``MotionState.extrapolated(i*T)`` from the step start).  Used by ``cantrack fmu
+check``, the cross-check generator, the FMU tests and ``benchmarks/fmu.py``.
 """
 
 from __future__ import annotations
@@ -113,48 +113,27 @@ def core_run(params: TrackerParams, scenario: Scenario, n_steps: int,
 
 
 class FmuTracker:
-    """One ``CanTracker.fmu`` instance in fmpy (``FMU2Slave``), as a context manager.
+    """One ``CanTracker.fmu`` (``FMU2Slave``) or ``CanTracker3.fmu`` (``FMU3Slave``) instance
+    in fmpy, as a context manager.
 
     ``start_values``: parameter values by name, set in initialisation mode.
-    Log messages go to ``self.messages`` as (status, category, message).
+    Log messages go to ``self.messages`` as (status, category, message).  ``self.slave`` is
+    the fmpy object; :meth:`get_state` & co. hide the FMI 2 / FMI 3 name differences.
     """
 
     def __init__(self, fmu_path: str | Path, instance_name: str = "tracker",
                  start_values: dict | None = None, start_time: float = 0.0,
                  logging_on: bool = True, unzip_dir: str | Path | None = None) -> None:
-        from fmpy import calloc, extract, free, read_model_description
-        from fmpy.fmi2 import (
-            FMU2Slave,
-            fmi2CallbackAllocateMemoryTYPE,
-            fmi2CallbackFreeMemoryTYPE,
-            fmi2CallbackFunctions,
-            fmi2CallbackLoggerTYPE,
-        )
+        from fmpy import extract, read_model_description
 
         self.path = Path(fmu_path)
         self.model_description = md = read_model_description(str(self.path))
+        self.fmi3 = md.fmiVersion.startswith("3")
         self.vr = {v.name: v.valueReference for v in md.modelVariables}
         self.types = {v.name: v.type for v in md.modelVariables}
         self._own_dir = unzip_dir is None
         self.unzip_dir = extract(str(self.path)) if unzip_dir is None else str(unzip_dir)
         self.messages: list[tuple[int, str, str]] = []
-
-        def log(_env, _name, status, category, message):
-            self.messages.append((int(status), (category or b"").decode(errors="replace"),
-                                  (message or b"").decode(errors="replace")))
-
-        callbacks = fmi2CallbackFunctions()
-        callbacks.logger = fmi2CallbackLoggerTYPE(log)
-        callbacks.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
-        callbacks.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
-        try:
-            from ctypes import byref
-
-            from fmpy.logging import addLoggerProxy
-            addLoggerProxy(byref(callbacks))
-        except Exception:  # pragma: no cover - older fmpy: messages may keep '%' escapes
-            pass
-        self._callbacks = callbacks  # keep alive
         self._in_vrs = [self.vr[n] for n in MASTER_INPUTS]
         self._out_vrs = [self.vr[n] for n in OUTPUT_REALS]
         self._int_vrs = [self.vr[n] for n in OUTPUT_INTS]
@@ -162,12 +141,10 @@ class FmuTracker:
         self.slave = None
         self.time = start_time
         try:
-            self.slave = FMU2Slave(guid=md.guid, unzipDirectory=self.unzip_dir,
-                                   modelIdentifier=md.coSimulation.modelIdentifier,
-                                   instanceName=instance_name)
-            self.slave.instantiate(callbacks=callbacks, loggingOn=logging_on)
-            self.slave.setupExperiment(startTime=start_time)
-            self.slave.enterInitializationMode()
+            if self.fmi3:
+                self._instantiate3(instance_name, logging_on, start_time)
+            else:
+                self._instantiate2(instance_name, logging_on, start_time)
             if start_values:
                 self.set(start_values)
             self.slave.exitInitializationMode()
@@ -179,14 +156,64 @@ class FmuTracker:
             raise FmuRunError(f"{self.path}: instantiation/initialisation failed: {exc}"
                               + (f"\n{log}" if log else "")) from exc
 
+    def _log(self, status, category, message) -> None:
+        self.messages.append((int(status), (category or b"").decode(errors="replace"),
+                              (message or b"").decode(errors="replace")))
+
+    def _instantiate2(self, instance_name: str, logging_on: bool, start_time: float) -> None:
+        from fmpy import calloc, free
+        from fmpy.fmi2 import (
+            FMU2Slave,
+            fmi2CallbackAllocateMemoryTYPE,
+            fmi2CallbackFreeMemoryTYPE,
+            fmi2CallbackFunctions,
+            fmi2CallbackLoggerTYPE,
+        )
+
+        md = self.model_description
+        callbacks = fmi2CallbackFunctions()
+        callbacks.logger = fmi2CallbackLoggerTYPE(
+            lambda _env, _name, status, category, message: self._log(status, category, message))
+        callbacks.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
+        callbacks.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
+        try:
+            from ctypes import byref
+
+            from fmpy.logging import addLoggerProxy
+            addLoggerProxy(byref(callbacks))
+        except Exception:  # pragma: no cover - older fmpy: messages may keep '%' escapes
+            pass
+        self._callbacks = callbacks  # keep alive
+        self.slave = slave = FMU2Slave(guid=md.guid, unzipDirectory=self.unzip_dir,
+                                       modelIdentifier=md.coSimulation.modelIdentifier,
+                                       instanceName=instance_name)
+        self._set_real, self._set_int = slave.setReal, slave.setInteger
+        self._get_real, self._get_int = slave.getReal, slave.getInteger
+        slave.instantiate(callbacks=callbacks, loggingOn=logging_on)
+        slave.setupExperiment(startTime=start_time)
+        slave.enterInitializationMode()
+
+    def _instantiate3(self, instance_name: str, logging_on: bool, start_time: float) -> None:
+        from fmpy.fmi3 import FMU3Slave
+
+        md = self.model_description
+        self.slave = slave = FMU3Slave(guid=md.guid, unzipDirectory=self.unzip_dir,
+                                       modelIdentifier=md.coSimulation.modelIdentifier,
+                                       instanceName=instance_name)
+        self._set_real, self._set_int = slave.setFloat64, slave.setInt32
+        self._get_real, self._get_int = slave.getFloat64, slave.getInt32
+        slave.instantiate(loggingOn=logging_on, logMessage=(
+            lambda _env, status, category, message: self._log(status, category, message)))
+        slave.enterInitializationMode(startTime=start_time)
+
     def set(self, values: dict) -> None:
-        """Set variables by name (Real, Integer or Boolean)."""
+        """Set variables by name (Real/Float64, Integer/Int32 or Boolean)."""
         for name, value in values.items():
             typ = self.types[name]
-            if typ == "Real":
-                self.slave.setReal([self.vr[name]], [float(value)])
-            elif typ == "Integer":
-                self.slave.setInteger([self.vr[name]], [int(value)])
+            if typ in ("Real", "Float64"):
+                self._set_real([self.vr[name]], [float(value)])
+            elif typ in ("Integer", "Int32"):
+                self._set_int([self.vr[name]], [int(value)])
             elif typ == "Boolean":
                 self.slave.setBoolean([self.vr[name]], [bool(value)])
             else:
@@ -194,13 +221,31 @@ class FmuTracker:
 
     def step(self, master: MotionState, engage: bool, step_size: float) -> None:
         """Set the master and engage, then one ``doStep`` from ``self.time``."""
-        self.slave.setReal(self._in_vrs, master_values(master))
+        self._set_real(self._in_vrs, master_values(master))
         self.slave.setBoolean(self._engage_vr, [engage])
         self.slave.doStep(currentCommunicationPoint=self.time, communicationStepSize=step_size)
         self.time += step_size
 
     def outputs(self) -> tuple[list[float], list[int]]:
-        return self.slave.getReal(self._out_vrs), self.slave.getInteger(self._int_vrs)
+        return self._get_real(self._out_vrs), self._get_int(self._int_vrs)
+
+    # -- FMU state (FMI 2 and FMI 3 spell the calls differently) ---------------------------
+    def get_state(self):
+        return self.slave.getFMUState() if self.fmi3 else self.slave.getFMUstate()
+
+    def set_state(self, state) -> None:
+        self.slave.setFMUState(state) if self.fmi3 else self.slave.setFMUstate(state)
+
+    def free_state(self, state) -> None:
+        self.slave.freeFMUState(state) if self.fmi3 else self.slave.freeFMUstate(state)
+
+    def serialize_state(self, state) -> bytes:
+        return (self.slave.serializeFMUState(state) if self.fmi3
+                else self.slave.serializeFMUstate(state))
+
+    def deserialize_state(self, data: bytes):
+        return (self.slave.deserializeFMUState(data) if self.fmi3
+                else self.slave.deSerializeFMUstate(data))
 
     def run(self, scenario: Scenario, n_steps: int, step_size: float,
             first_step: int = 0) -> CoreRun:

@@ -6,8 +6,12 @@ Boolean -> Boolean, plus the independent variable ``time`` [s] (value reference 
 52 variables of the FMI 2.0 FMU, which keep their value references).  pythonfmu3 writes the
 units, ``InitialUnknown`` and ``Output`` entries itself.
 
-FMI 3 statuses: a refused step gives ``fmi3Discard``; an exception in a step gives
-``fmi3Error`` (logged with its traceback); see the engine for when steps are refused.
+FMI 3 statuses: a refused step (step size, non-finite master input, invalid tunable at
+engage) gives ``fmi3Discard`` -- the FMU is in the state it had before the call and the step
+can be repeated; an exception in a step gives ``fmi3Error`` (logged with its traceback);
+see the engine for when steps are refused.  Errors reach the importer through its
+logMessage callback (pythonfmu3 forwards them whatever loggingOn), so the engine's Python
+logger ``cantrack.fmu`` records them at DEBUG only.
 """
 
 from __future__ import annotations
@@ -39,9 +43,12 @@ class CanTracker3(EngineStateMixin, Fmi3Slave):
         self.version = controller.__version__
         self.license = "MIT"
         self.default_experiment = DefaultExperiment(start_time=0.0, step_size=0.001)
-        engine = self._engine = TrackerEngine(self.instance_name, __name__, self._fmi_log)
+        # pythonfmu3 forwards every non-debug message to the importer's logMessage, whatever
+        # loggingOn: the engine's Python logger then stays quiet (DEBUG) -- no double print
+        engine = self._engine = TrackerEngine(self.instance_name, __name__, self._fmi_log,
+                                              importer_sees_errors=True)
         v = self._v = engine.v
-        used = sorted({row[5] for row in VARIABLES if row[5] and row[5] != "1"} | {"s"})
+        used = sorted({row[5] for row in VARIABLES if row[5]} | {"s"})
         self.register_units([Unit(name, factor=UNITS[name][1], **UNITS[name][0])
                              for name in used])
         for vr, (name, typ, causality, variability, _start, unit, desc, _x) in enumerate(
@@ -51,7 +58,7 @@ class CanTracker3(EngineStateMixin, Fmi3Slave):
                       getter=(lambda vr=vr: v[vr]),
                       setter=None if causality == "output" else (
                           lambda value, vr=vr: v.__setitem__(vr, value)))
-            if typ == "Real" and unit and unit != "1":
+            if typ == "Real" and unit:
                 kw["unit"] = unit
             var = _TYPES[typ](name, **kw)
             self.register_variable(var)
@@ -64,6 +71,7 @@ class CanTracker3(EngineStateMixin, Fmi3Slave):
         self._real = engine.by_type["Real"]
         self._int = engine.by_type["Integer"]
         self._bool = engine.by_type["Boolean"]
+        self._settable = engine.settable  # changes at exitInitializationMode (fixed ones)
 
     def to_xml(self, model_options: dict | None = None):
         """pythonfmu3's description plus the min/max attributes of the parameters."""
@@ -111,19 +119,22 @@ class CanTracker3(EngineStateMixin, Fmi3Slave):
         return [v[vr] for vr in vrs]
 
     def set_float64(self, vrs, values):
-        self._engine.check("Real", vrs, settable=True)
+        if not self._settable["Real"].issuperset(vrs):
+            return self._engine.set_values("Real", vrs, values, float)
         v = self._v
         for vr, value in zip(vrs, values):
             v[vr] = value
 
     def set_int32(self, vrs, values):
-        self._engine.check("Integer", vrs, settable=True)
+        if not self._settable["Integer"].issuperset(vrs):
+            return self._engine.set_values("Integer", vrs, values, int)
         v = self._v
         for vr, value in zip(vrs, values):
             v[vr] = int(value)
 
     def set_boolean(self, vrs, values):
-        self._engine.check("Boolean", vrs, settable=True)
+        if not self._settable["Boolean"].issuperset(vrs):
+            return self._engine.set_values("Boolean", vrs, values, bool)
         v = self._v
         for vr, value in zip(vrs, values):
             v[vr] = bool(value)

@@ -6,7 +6,8 @@ a copy of the tracker core (``controller/__init__.py``, ``controller/errors.py``
 ``controller/tracking/``) and of ``controller/fmu/engine.py``, which holds the variables,
 the step semantics, the error handling and the FMU state (see its docstring).  This class
 maps pythonfmu's calls onto the engine and writes the model description extras pythonfmu
-lacks (units, min/max, output dependencies, ``InitialUnknowns``: pythonfmu issue #193).
+lacks (units incl. "1" for the dimensionless factors, min/max, output dependencies,
+``InitialUnknowns``: pythonfmu issue #193).
 
 FMI 2 statuses: a refused step and an exception in a step both give ``fmi2Discard`` (a
 pythonfmu slave can return nothing else from a step); the message says which.
@@ -70,9 +71,7 @@ class CanTracker(EngineStateMixin, Fmi2Slave):
         self._real = engine.by_type["Real"]
         self._int = engine.by_type["Integer"]
         self._bool = engine.by_type["Boolean"]
-        self._set_real = engine.settable["Real"]
-        self._set_int = engine.settable["Integer"]
-        self._set_bool = engine.settable["Boolean"]
+        self._settable = engine.settable  # changes at exitInitializationMode (fixed ones)
 
     def _fmi_log(self, msg: str, warning: bool) -> None:
         self.log(msg, Fmi2Status.warning if warning else Fmi2Status.error)
@@ -84,7 +83,7 @@ class CanTracker(EngineStateMixin, Fmi2Slave):
         root = super().to_xml(model_options or {})
         specs = {row[0]: (row[5], row[7]) for row in VARIABLES}
         units = Element("UnitDefinitions")
-        for name in sorted({unit for unit, _ in specs.values() if unit and unit != "1"}):
+        for name in sorted({unit for unit, _ in specs.values() if unit}):
             exps, factor = UNITS[name]
             attrs = {k: str(e) for k, e in exps.items()}
             if factor != 1.0:
@@ -93,7 +92,7 @@ class CanTracker(EngineStateMixin, Fmi2Slave):
         root.insert(list(root).index(root.find("CoSimulation")) + 1, units)
         for sv in root.find("ModelVariables"):
             unit, extra = specs[sv.get("name")]
-            if unit and unit != "1":
+            if unit:
                 sv[0].set("unit", unit)
             for k, val in extra.items():
                 sv[0].set(k, val)
@@ -141,22 +140,22 @@ class CanTracker(EngineStateMixin, Fmi2Slave):
         return [v[vr] for vr in vrs]
 
     def set_real(self, vrs, values):
-        if not self._set_real.issuperset(vrs):
-            self._engine.check("Real", vrs, settable=True)
+        if not self._settable["Real"].issuperset(vrs):
+            return self._engine.set_values("Real", vrs, values, float)
         v = self._v
         for vr, value in zip(vrs, values):
             v[vr] = value
 
     def set_integer(self, vrs, values):
-        if not self._set_int.issuperset(vrs):
-            self._engine.check("Integer", vrs, settable=True)
+        if not self._settable["Integer"].issuperset(vrs):
+            return self._engine.set_values("Integer", vrs, values, int)
         v = self._v
         for vr, value in zip(vrs, values):
             v[vr] = int(value)
 
     def set_boolean(self, vrs, values):
-        if not self._set_bool.issuperset(vrs):
-            self._engine.check("Boolean", vrs, settable=True)
+        if not self._settable["Boolean"].issuperset(vrs):
+            return self._engine.set_values("Boolean", vrs, values, bool)
         v = self._v
         for vr, value in zip(vrs, values):
             v[vr] = bool(value)
