@@ -24,3 +24,20 @@ def stepped_controller():
     yield _make
     for w in worlds:
         w.close()
+
+
+@pytest.fixture(scope="session")
+def conveyor_example_run():
+    """``conveyor_example_run(name)`` -> the ConveyorResult of ``examples/<name>`` (each example
+    simulated once per session, shared by the conveyor tests)."""
+    from pathlib import Path
+
+    from controller.simulate import run_scenario
+    examples = Path(__file__).resolve().parents[1] / "examples"
+    cache: dict = {}
+
+    def _run(name: str):
+        if name not in cache:
+            cache[name] = run_scenario(examples / name)
+        return cache[name]
+    return _run

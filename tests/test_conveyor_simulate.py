@@ -21,14 +21,14 @@ from controller.simulate.conveyor import (CONVEYOR_TRACE_COLUMNS, ConveyorResult
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 
 
-@pytest.fixture(scope="module")
-def linear() -> ConveyorResult:
-    return run_scenario(EXAMPLES / "conveyor_linear.yaml")
+@pytest.fixture
+def linear(conveyor_example_run) -> ConveyorResult:
+    return conveyor_example_run("conveyor_linear.yaml")
 
 
-@pytest.fixture(scope="module")
-def rotary() -> ConveyorResult:
-    return run_scenario(EXAMPLES / "conveyor_rotary.yaml")
+@pytest.fixture
+def rotary(conveyor_example_run) -> ConveyorResult:
+    return conveyor_example_run("conveyor_rotary.yaml")
 
 
 def small(**changes) -> dict:

@@ -35,14 +35,14 @@ def _linear_doc() -> dict:
     return yaml.safe_load((EXAMPLES / "conveyor_linear.yaml").read_text())
 
 
-@pytest.fixture(scope="module")
-def linear() -> ConveyorResult:
-    return run_scenario(EXAMPLES / "conveyor_linear.yaml")
+@pytest.fixture
+def linear(conveyor_example_run) -> ConveyorResult:
+    return conveyor_example_run("conveyor_linear.yaml")
 
 
-@pytest.fixture(scope="module")
-def rotary() -> ConveyorResult:
-    return run_scenario(EXAMPLES / "conveyor_rotary.yaml")
+@pytest.fixture
+def rotary(conveyor_example_run) -> ConveyorResult:
+    return conveyor_example_run("conveyor_rotary.yaml")
 
 
 @pytest.fixture(scope="module")
