@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import itertools
 import struct
+from contextlib import contextmanager
+from dataclasses import replace
 
 import canopen
 import pytest
@@ -293,33 +295,48 @@ def test_tpdo_remap_over_sdo_follows_cia301(rig):
     assert frames[-1] == struct.pack("<I", 1)
 
 
-def test_demo_items_missed(tmp_path):
-    """Two items at nearly the same place (the PLC reports one right after the photo-eye's):
-    the second leaves the window while the first is picked and placed (a long place dwell
-    keeps the robot busy): 2006h counts it and TPDO3 reports it."""
+@contextmanager
+def _plc_demo(record: bool = False, **demo_changes):
+    """The demo (PickPlace on the demo bus.yml, photo-eye items) with the PLC node and an SDO
+    client of the PLC, booted and started -> (world, ctl, app, client)."""
     cfg = load_bus_config(cmd_demo.DEFAULT_CONFIG)
-    from dataclasses import replace
-    demo = replace(cfg.demo, items=1, place_dwell_s=2.0)
-    app = PickPlace(demo)
-    with SimWorld(cfg, record=True) as world:
+    app = PickPlace(replace(cfg.demo, **demo_changes))
+    with SimWorld(cfg, record=record) as world:
         ctl = Controller(cfg, world.transport, app)
         PlcNode(ctl, app)
         client = SdoClient(SteppedTransport(world.world), cfg.master.node_id, "plc",
                            timeout_s=0.01)
         ctl.boot()
         ctl.start()
-        app.eye = PhotoEye(world.device(cfg.tracking.conveyor.node).profile, demo,
+        app.eye = PhotoEye(world.device(cfg.tracking.conveyor.node).profile, app.demo,
                            world.clock.now_ns() * 1e-9)
-        triggered = False
-        while ctl.k < 4000:
-            ctl.step()
-            if ctl.phase is Phase.ENABLING:
-                continue
-            if app.done(ctl, ctl.k - 1):
-                break
+        yield world, ctl, app, client
+
+
+def _run_demo(ctl, app, max_cycles: int, each_cycle) -> None:
+    """Step the demo until it is done (or ``max_cycles``), calling ``each_cycle()`` after every
+    running cycle."""
+    while ctl.k < max_cycles:
+        ctl.step()
+        if ctl.phase is Phase.ENABLING:
+            continue
+        if app.done(ctl, ctl.k - 1):
+            break
+        each_cycle()
+
+
+def test_demo_items_missed(tmp_path):
+    """Two items at nearly the same place (the PLC reports one right after the photo-eye's):
+    the second leaves the window while the first is picked and placed (a long place dwell
+    keeps the robot busy): 2006h counts it and TPDO3 reports it."""
+    with _plc_demo(record=True, items=1, place_dwell_s=2.0) as (world, ctl, app, client):
+        triggered = []
+
+        def trigger_after_the_photo_eye():
             if not triggered and app.eye.detected == 1:
-                triggered = True
+                triggered.append(ctl.k)
                 client.download(0x2004, 0, b"\x01")
+        _run_demo(ctl, app, 4000, trigger_after_the_photo_eye)
         assert triggered
         missed = [i for i in app.items() if i.outcome == "missed"]
         assert len(missed) >= 1
@@ -346,29 +363,14 @@ def test_demo_plc_disengage_misses_the_item(tmp_path):
     """The PLC disengages while the demo follows an item: that item is missed (de-synced),
     the next one is caught and placed."""
     from controller.canopen.demo import Step
-    cfg = load_bus_config(cmd_demo.DEFAULT_CONFIG)
-    from dataclasses import replace
-    demo = replace(cfg.demo, items=2)
-    app = PickPlace(demo)
-    with SimWorld(cfg) as world:
-        ctl = Controller(cfg, world.transport, app)
-        PlcNode(ctl, app)
-        client = SdoClient(SteppedTransport(world.world), cfg.master.node_id, "plc",
-                           timeout_s=0.01)
-        ctl.boot()
-        ctl.start()
-        app.eye = PhotoEye(world.device(cfg.tracking.conveyor.node).profile, demo,
-                           world.clock.now_ns() * 1e-9)
-        sent = False
-        while ctl.k < 6000:
-            ctl.step()
-            if ctl.phase is Phase.ENABLING:
-                continue
-            if app.done(ctl, ctl.k - 1):
-                break
+    with _plc_demo(items=2) as (world, ctl, app, client):
+        sent = []
+
+        def disengage_while_following():
             if not sent and app.step is Step.FOLLOW:
-                sent = True
+                sent.append(ctl.k)
                 client.download(0x2005, 0, b"\x00")
+        _run_demo(ctl, app, 6000, disengage_while_following)
         assert sent
         assert client.upload_uint(0x2006, 0) == 1
     assert [i.outcome for i in app.items()] == ["missed", "placed"]
