@@ -555,3 +555,40 @@ class EngineStateMixin:
     @staticmethod
     def _fmu_state_from_bytes(state: bytes) -> dict:
         return TrackerEngine.state_from_bytes(state)
+
+    # -- variable access shared by both FMI versions (the slaves bind them to their API's
+    #    names: get_integer / get_int32, set_real / set_float64, ...).  The fast path reads
+    #    and writes ``self._v`` directly (these run several times per step); anything else
+    #    (unknown, read-only or frozen variables) goes through the engine's checks.
+    def _get_integers(self, vrs):
+        if not self._int.issuperset(vrs):
+            self._engine.check("Integer", vrs)
+        v = self._v
+        return [v[vr] for vr in vrs]
+
+    def _get_booleans(self, vrs):
+        if not self._bool.issuperset(vrs):
+            self._engine.check("Boolean", vrs)
+        v = self._v
+        return [v[vr] for vr in vrs]
+
+    def _set_reals(self, vrs, values):
+        if not self._settable["Real"].issuperset(vrs):
+            return self._engine.set_values("Real", vrs, values, float)
+        v = self._v
+        for vr, value in zip(vrs, values):
+            v[vr] = value
+
+    def _set_integers(self, vrs, values):
+        if not self._settable["Integer"].issuperset(vrs):
+            return self._engine.set_values("Integer", vrs, values, int)
+        v = self._v
+        for vr, value in zip(vrs, values):
+            v[vr] = int(value)
+
+    def _set_booleans(self, vrs, values):
+        if not self._settable["Boolean"].issuperset(vrs):
+            return self._engine.set_values("Boolean", vrs, values, bool)
+        v = self._v
+        for vr, value in zip(vrs, values):
+            v[vr] = bool(value)

@@ -106,35 +106,8 @@ class CanTracker3(EngineStateMixin, Fmi3Slave):
         self._engine.check(kind, [vr])
         return self._v[vr]
 
-    def get_int32(self, vrs):
-        if not self._int.issuperset(vrs):
-            self._engine.check("Integer", vrs)
-        v = self._v
-        return [v[vr] for vr in vrs]
-
-    def get_boolean(self, vrs):
-        if not self._bool.issuperset(vrs):
-            self._engine.check("Boolean", vrs)
-        v = self._v
-        return [v[vr] for vr in vrs]
-
-    def set_float64(self, vrs, values):
-        if not self._settable["Real"].issuperset(vrs):
-            return self._engine.set_values("Real", vrs, values, float)
-        v = self._v
-        for vr, value in zip(vrs, values):
-            v[vr] = value
-
-    def set_int32(self, vrs, values):
-        if not self._settable["Integer"].issuperset(vrs):
-            return self._engine.set_values("Integer", vrs, values, int)
-        v = self._v
-        for vr, value in zip(vrs, values):
-            v[vr] = int(value)
-
-    def set_boolean(self, vrs, values):
-        if not self._settable["Boolean"].issuperset(vrs):
-            return self._engine.set_values("Boolean", vrs, values, bool)
-        v = self._v
-        for vr, value in zip(vrs, values):
-            v[vr] = bool(value)
+    get_int32 = EngineStateMixin._get_integers
+    get_boolean = EngineStateMixin._get_booleans
+    set_float64 = EngineStateMixin._set_reals
+    set_int32 = EngineStateMixin._set_integers
+    set_boolean = EngineStateMixin._set_booleans
