@@ -68,7 +68,7 @@ def build_parser() -> argparse.ArgumentParser:
                         help="more logging (-v info, -vv debug)")
     parser.add_argument("--debug", action="store_true",
                         help="show tracebacks instead of one-line errors")
-    parser.add_argument("command", metavar="COMMAND", choices=sorted(COMMANDS),
+    parser.add_argument("command", metavar="COMMAND", nargs="?", choices=sorted(COMMANDS),
                         help="one of: " + ", ".join(COMMANDS))
     parser.add_argument("args", nargs=argparse.REMAINDER, metavar="ARGS",
                         help="the command's arguments")
@@ -85,7 +85,11 @@ def _message(exc: BaseException) -> str:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run ``cantrack``; returns the exit code."""
-    args = build_parser().parse_args(argv)
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if args.command is None:  # bare `cantrack`: what it can do, not an argparse complaint
+        parser.print_help(sys.stderr)
+        return EXIT_ERROR
     level = logging.WARNING if args.verbose == 0 else logging.INFO if args.verbose == 1 \
         else logging.DEBUG
     logging.basicConfig(level=level, format="cantrack: %(levelname)s: %(name)s: %(message)s")

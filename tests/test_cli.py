@@ -193,3 +193,11 @@ def test_verbose_logging(tmp_path, capsys):
     assert proc.returncode == 0 and proc.stdout == ""
     assert "INFO" in proc.stderr and "trace written" in proc.stderr
     assert os.path.getsize(env_out) > 0
+
+
+def test_bare_cantrack_lists_the_commands(capsys):
+    from controller.cli import COMMANDS, main
+
+    assert main([]) == 2
+    err = capsys.readouterr().err
+    assert "commands:" in err and all(name in err for name in COMMANDS)
