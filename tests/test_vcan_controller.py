@@ -48,14 +48,9 @@ CANTRACK = [sys.executable, "-m", "controller.cli"]
 # the orchestrator (runs inside the VM / on the native vcan0)
 
 def _wait_file(path: Path, procs, timeout_s: float) -> None:
-    t_end = time.monotonic() + timeout_s
-    while not path.is_file():
-        for p in procs:
-            if p.poll() is not None:
-                raise RuntimeError(f"{p.args} exited with {p.returncode} before {path.name}")
-        if time.monotonic() > t_end:
-            raise RuntimeError(f"no {path.name} within {timeout_s} s")
-        time.sleep(0.05)
+    from controller.testing.e2e import wait_file  # (shared with the hil tier)
+
+    wait_file(path, procs, timeout_s)
 
 
 def orchestrate(out: Path, channel: str) -> int:
@@ -208,23 +203,15 @@ def test_boot_on_the_bus(session):
     """NMT reset node of each slave, boot-ups, identity SDOs, NMT start; the controller's own
     boot-up and heartbeat from the boot on."""
     from controller.testing.capture import Kind
+    from controller.testing.e2e import boot_problems
 
     fr = session.frames
     nmt = [(f.nmt_command, f.nmt_target) for f in _of(fr, Kind.NMT)]
     assert nmt[:3] == [(0x81, ENCODER), (0x81, X), (0x81, Y)], nmt
     assert set(nmt[3:6]) == {(0x01, ENCODER), (0x01, X), (0x01, Y)}, nmt
-    hb = _of(fr, Kind.HEARTBEAT)
-    master = [f for f in hb if f.can_id == 0x701]
-    assert master and master[0].nmt_state == 0, "the controller's boot-up"
-    first_sync = _of(fr, Kind.SYNC)[0].time_s
-    before = [f for f in master if f.time_s < first_sync and f.nmt_state == 5]
-    assert before, "the controller's heartbeat runs during the boot"
-    for node in (ENCODER, X, Y):
-        boot_ups = [f for f in hb if f.node_id == node and f.nmt_state == 0]
-        assert boot_ups, node
-        ident = {(f.sdo_index, f.sdo_subindex) for f in _of(fr, Kind.SDO)
-                 if f.node_id == node and f.direction == "rx"}
-        assert {(0x1000, 0), (0x1018, 1), (0x1018, 2)} <= ident, (node, ident)
+    # boot-ups, identity SDOs, the controller's boot-up and heartbeat before the first SYNC
+    bad = boot_problems(fr, {"encoder": ENCODER, "x": X, "y": Y}, master_id=1)
+    assert not bad, bad
     # 60C2h = the SYNC period (100 x 10^-3 s) written to both drives
     for node in (X, Y):
         w = {(f.sdo_index, f.sdo_subindex): f.data for f in _of(fr, Kind.SDO)
@@ -234,15 +221,14 @@ def test_boot_on_the_bus(session):
 
 @pytestmark_vcan
 def test_sync_period_and_counter(session):
-    from controller.testing.capture import sync_period_stats
+    from controller.testing.e2e import sync_problems
 
-    stats = sync_period_stats(session.frames, overflow=SYNC_OVERFLOW)
     rep = session.report
     assert rep["sync_period_us"] == SYNC_PERIOD_S * 1e6 and rep["sync_overflow"] == SYNC_OVERFLOW
-    assert stats.counters[0] == 1 and not stats.counter_gaps, stats.describe()
-    assert stats.count == rep["cycles"], stats.describe()
-    assert abs(stats.period_median_s - SYNC_PERIOD_S) <= 0.1 * SYNC_PERIOD_S, stats.describe()
-    assert abs(stats.period_mean_s - SYNC_PERIOD_S) <= 0.25 * SYNC_PERIOD_S, stats.describe()
+    # counter 1..10 from 1 without a gap, count = cycles, median within 10 %, mean within 25 %
+    bad = sync_problems(session.frames, period_s=SYNC_PERIOD_S, overflow=SYNC_OVERFLOW,
+                        cycles=rep["cycles"], median_tol=0.1, mean_tol=0.25)
+    assert not bad, bad
 
 
 @pytestmark_vcan
@@ -255,11 +241,10 @@ def test_pdo_order_per_sync(session):
     TPDO lands in the next cycle) - scheduling, not correctness; the controller then waits up
     to its compute deadline and counts the cycle in ``timing.late_inputs``.
     """
-    from controller.testing.capture import pdo_order_per_sync
+    from controller.testing.e2e import pdo_cycles
 
     enc, x, y, rx, ry = 0x18A, 0x18B, 0x18C, 0x20B, 0x20C
-    cycles = [tuple(c for c in cyc if c in {enc, x, y, rx, ry})  # (TPDO3s: event-driven)
-              for cyc in pdo_order_per_sync(session.frames)]
+    cycles = pdo_cycles(session.frames, {enc, x, y, rx, ry})  # (TPDO3s: event-driven)
     _running_window(session)  # (the report has the cycle start and the loss)
     # The orchestrator kills y after it has seen the KILL_AT_SYNC-th SYNC (cycles[69]): every
     # cycle before that one is whole.  The first is left out (the devices start their PDOs
@@ -288,13 +273,15 @@ def test_pdo_order_per_sync(session):
 
 @pytestmark_vcan
 def test_enable_track_desync(session):
+    from controller.testing.e2e import TRACK_CYCLE, running_states
+
     rep = session.report
     states = [(c["phase"], c["state"]) for c in rep["state_changes"]]
     # enable, then (engage) SYNCING -> SYNCED, (disengage) DESYNCING -> OFF; after the kill
     # the quick stop (phase stopping)
-    running = [st for ph, st in states if ph == "running"]
     assert states[0] == ("enabling", "OFF"), states
-    assert running == ["OFF", "SYNCING", "SYNCED", "DESYNCING", "OFF"], states
+    assert running_states(rep) == TRACK_CYCLE == ["OFF", "SYNCING", "SYNCED", "DESYNCING",
+                                                   "OFF"], states
     assert states[-1][0] == "stopping", states
     i_run = states.index(("running", "OFF"))
     i_sync = states.index(("running", "SYNCING"))

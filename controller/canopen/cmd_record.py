@@ -56,13 +56,22 @@ def main(argv: list[str] | None = None, prog: str = "cantrack record") -> int:
     count = 0
     t_end = None if args.duration is None else time.monotonic() + args.duration
     try:
-        while not stop[0] and (t_end is None or time.monotonic() < t_end):
-            msg = bus.recv(0.1)
-            if msg is not None:
-                logger.on_message_received(msg)
-                count += 1
-    except KeyboardInterrupt:
-        pass
+        try:
+            while not stop[0] and (t_end is None or time.monotonic() < t_end):
+                msg = bus.recv(0.1)
+                if msg is not None:
+                    logger.on_message_received(msg)
+                    count += 1
+        except KeyboardInterrupt:
+            pass
+        # what the bus has already received is part of the session (a SIGTERM sent right
+        # after another process's last frame must not lose it): drain it, without waiting
+        for _ in range(100_000):
+            msg = bus.recv(0.0)
+            if msg is None:
+                break
+            logger.on_message_received(msg)
+            count += 1
     finally:
         logger.stop()
         bus.shutdown()

@@ -393,19 +393,109 @@ def _pcap_payloads(path: Path) -> list[bytes]:
     return out
 
 
+#: the decoders :func:`classify_capture` can use
+DECODERS = ("tshark", "builtin", "auto")
+
+
+def pick_decoder(decoder: str = "auto", tshark: str | None = None) -> tuple[str, str | None]:
+    """(``"tshark"``, its path) or (``"builtin"``, None) for ``decoder`` ("tshark", "builtin"
+    or "auto": tshark when it is on PATH, else the built-in decoder).
+
+    "tshark" without tshark raises :class:`CaptureError` with what to install.
+    """
+    if decoder not in DECODERS:
+        raise ValueError(f"decoder {decoder!r}: one of {', '.join(DECODERS)}")
+    if decoder == "builtin":
+        return "builtin", None
+    if tshark is not None:
+        return "tshark", tshark
+    ok, found = tshark_available()
+    if ok:
+        return "tshark", found
+    if decoder == "auto":
+        return "builtin", None
+    raise CaptureError(f"cannot decode with tshark: {found}")
+
+
+def _sdo_index(direction: str, data: bytes) -> tuple[int | None, int | None]:
+    """The object an SDO initiate request/response or abort names (CiA 301 7.2.4.3)."""
+    if len(data) < 4:
+        return None, None
+    cs = data[0] >> 5
+    named = {1, 2, 4, 5, 6} if direction == "rx" else {2, 3, 4, 5, 6}
+    if cs not in named or (cs == 5 and direction == "tx" and data[0] & 0x03 != 0) or (
+            cs == 6 and direction == "rx" and data[0] & 0x01 != 0):
+        return None, None   # (block transfer sub-commands other than initiate)
+    return int.from_bytes(data[1:3], "little"), data[3]
+
+
+def decode_messages(messages: Sequence) -> list[FrameClass]:
+    """The built-in decoder: one :class:`FrameClass` per python-can message, from the CiA 301
+    predefined connection set of its COB-ID and its data bytes, without tshark.
+
+    It is *not* independent of our own reading of CiA 301 (``kind`` is always
+    ``expected_kind``; nothing is ever ``malformed``; the length rules still apply): use it
+    where tshark is not installed (a rig PC); the ``vcan`` tier uses tshark.
+    """
+    frames = []
+    t0 = None
+    for number, msg in enumerate(messages, start=1):
+        ts = float(msg.timestamp or 0.0)
+        t0 = ts if t0 is None else t0
+        ext, rtr = bool(msg.is_extended_id), bool(msg.is_remote_frame)
+        can_id = int(msg.arbitration_id) & (0x1FFFFFFF if ext else 0x7FF)
+        data = bytes(msg.data or b"")
+        length = int(msg.dlc) if rtr else len(data)
+        exp = Kind.UNKNOWN if msg.is_error_frame else expected_kind(can_id, ext, rtr)
+        fields: dict = {}
+        if exp is not Kind.UNKNOWN:
+            fc, node = can_id >> 7, can_id & 0x7F
+            fields.update(function_code=fc, node_id=node)
+            if exp is Kind.PDO:
+                fields.update(pdo=(fc - 1) // 2, direction="tx" if fc % 2 == 1 else "rx")
+            elif exp is Kind.SDO:
+                direction = "tx" if fc == 0xB else "rx"
+                index, sub = _sdo_index(direction, data)
+                fields.update(direction=direction, sdo_index=index, sdo_subindex=sub)
+            elif exp is Kind.SYNC and length >= 1:
+                fields.update(sync_counter=data[0])
+            elif exp is Kind.HEARTBEAT and not rtr and length >= 1:
+                fields.update(nmt_state=data[0] & 0x7F)
+            elif exp is Kind.NMT and length >= 2:
+                fields.update(nmt_command=data[0], nmt_target=data[1])
+            elif exp is Kind.EMCY and length >= 3:
+                fields.update(emcy_code=int.from_bytes(data[:2], "little"),
+                              emcy_register=data[2])
+        frames.append(FrameClass(
+            number=number, time_s=ts - t0, can_id=can_id, is_extended=ext, is_remote=rtr,
+            data=data, kind=exp, expected_kind=exp, malformed=False,
+            info=f"builtin: {exp.value}",
+            issues=_length_issues(exp, length, rtr, data) if exp is not Kind.UNKNOWN else (),
+            **fields))
+    return frames
+
+
 def classify_capture(path: str | Path, *, pcap_path: str | Path | None = None,
-                     tshark: str | None = None) -> list[FrameClass]:
+                     tshark: str | None = None, decoder: str = "tshark") -> list[FrameClass]:
     """Decode a bus capture with tshark's CANopen dissector; one :class:`FrameClass` per frame.
 
     ``path``: a pcap with link type 227 (``.pcap``) or any python-can log (candump ``-L``
     ``.log``, ``.asc``, ``.blf``, ...), which is first converted to ``pcap_path`` (default: the
     same name with ``.pcap``).  Raises :class:`CaptureError` when the file cannot be read or
     tshark is missing (the message says what to install).
+
+    ``decoder``: "tshark" (the default), "builtin" (:func:`decode_messages`, no tshark) or
+    "auto" (tshark when it is on PATH, else builtin; :func:`pick_decoder` says which).
     """
     path = Path(path)
+    name, tshark = pick_decoder(decoder, tshark)
     if path.suffix.lower() in (".pcap", ".cap"):
+        if name == "builtin":
+            raise CaptureError(f"{path}: the built-in decoder reads python-can logs, not pcap")
         return decode_pcap(path, tshark=tshark)
     messages = read_log(path)
+    if name == "builtin":
+        return decode_messages(messages)
     out = Path(pcap_path) if pcap_path is not None else path.with_suffix(".pcap")
     write_pcap(messages, out)
     return decode_pcap(out, messages=messages, tshark=tshark)

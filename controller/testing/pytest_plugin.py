@@ -12,6 +12,12 @@ Options (group "cantrack CAN bus")::
     --can-channel NAME     its channel (can0, PCAN_USBBUS1, ...)
     --can-bitrate BIT/S    its bitrate (for interfaces that set it; socketcan: set by `ip link`)
     --bus-config PATH      the rig's cantrack bus configuration (nodes, EDS files, PDOs)
+    --hil-duration S       hil end-to-end run: `cantrack run --duration` (default 5)
+    --hil-engage-at S      ... `--engage-at` (default 1)
+    --hil-disengage-at S   ... `--disengage-at` (default 3)
+    --hil-wait-nodes S     wait up to S s for every configured node's heartbeat first (default 0)
+    --hil-decoder NAME     decode the hil capture with tshark, builtin or auto (default: tshark
+                           when installed, else the built-in CiA 301 decoder)
     --vcan-mode MODE       auto (default; $CANTRACK_VCAN_MODE), native or vm
     --vcan-required        a vcan test that cannot run fails instead of being skipped
                            (default from $CANTRACK_VCAN_REQUIRED=1; CI sets it)
@@ -22,7 +28,9 @@ skipped unless ``--can-interface`` and ``--can-channel`` are given.
 
 Fixtures: ``vcan_runner`` (session; :class:`VcanRunner`: ``.run(argv, timeout_s, env=...)``
 → :class:`~controller.testing.vm.VmResult`), ``hil_bus_config`` (session; :class:`HilBus`),
-``tshark_path`` (session; path of tshark, skip/fail with the install hint when missing).
+``tshark_path`` (session; path of tshark, skip/fail with the install hint when missing),
+``hil_rig`` (session; the :class:`HilBus` with its loaded bus configuration: fails when no
+``--bus-config`` was given).
 """
 
 from __future__ import annotations
@@ -55,6 +63,18 @@ def pytest_addoption(parser: pytest.Parser) -> None:
                 help="bitrate of the real bus (for interfaces that set it)")
     g.addoption("--bus-config", default=None, metavar="PATH",
                 help="the rig's cantrack bus configuration file for hil tests")
+    g.addoption("--hil-duration", default=5.0, type=float, metavar="S",
+                help="hil end-to-end run: cantrack run --duration (default 5 s)")
+    g.addoption("--hil-engage-at", default=1.0, type=float, metavar="S",
+                help="hil end-to-end run: cantrack run --engage-at (default 1 s)")
+    g.addoption("--hil-disengage-at", default=3.0, type=float, metavar="S",
+                help="hil end-to-end run: cantrack run --disengage-at (default 3 s)")
+    g.addoption("--hil-wait-nodes", default=0.0, type=float, metavar="S",
+                help="hil: before check-bus, wait up to S s for a heartbeat of every "
+                     "configured node (a rig that is still powering up; default 0: no wait)")
+    g.addoption("--hil-decoder", default="auto", choices=("auto", "tshark", "builtin"),
+                help="hil: how to decode the bus capture: tshark's CANopen dissector, the "
+                     "built-in CiA 301 decoder, or auto (tshark when installed; default)")
     g.addoption("--vcan-mode", default=None, choices=MODES,
                 help="how vcan tests get a real SocketCAN vcan0: auto (native, else VM; "
                      "default, or $CANTRACK_VCAN_MODE), native, vm")
@@ -158,6 +178,11 @@ class HilBus:
     channel: str
     bitrate: int | None = None
     bus_config: Path | None = None
+    run_duration_s: float = 5.0
+    engage_at_s: float = 1.0
+    disengage_at_s: float = 3.0
+    decoder: str = "auto"
+    wait_nodes_s: float = 0.0
 
     def bus_kwargs(self) -> dict:
         """Keyword arguments for ``can.Bus(**kw)`` / ``canopen.Network().connect(**kw)``."""
@@ -165,6 +190,47 @@ class HilBus:
         if self.bitrate is not None:
             kw["bitrate"] = self.bitrate
         return kw
+
+    def bus_args(self) -> list[str]:
+        """The bus arguments of a ``cantrack`` command: ``-i IF -c CH [-b BIT/S]``."""
+        args = ["-i", self.interface, "-c", self.channel]
+        if self.bitrate is not None:
+            args += ["-b", str(self.bitrate)]
+        return args
+
+    def load_config(self):
+        """The rig's :class:`~controller.canopen.config.BusConfig` (``--bus-config``)."""
+        from ..canopen.config import load_bus_config
+
+        if self.bus_config is None:
+            raise ValueError("no --bus-config given")
+        return load_bus_config(self.bus_config)
+
+    def wait_for_heartbeats(self, node_ids, timeout_s: float) -> set[int]:
+        """Listen until every node of ``node_ids`` has sent a heartbeat, at most
+        ``timeout_s``; return the nodes not heard (empty: all there).  Sends nothing."""
+        import time
+
+        import can
+
+        missing = set(node_ids)
+        t_end = time.monotonic() + timeout_s
+        with can.Bus(**self.bus_kwargs()) as bus:
+            while missing and time.monotonic() < t_end:
+                msg = bus.recv(min(0.2, max(0.0, t_end - time.monotonic())))
+                if (msg is not None and not msg.is_extended_id
+                        and 0x701 <= msg.arbitration_id <= 0x77F):
+                    missing.discard(msg.arbitration_id - 0x700)
+        return missing
+
+    def describe(self) -> str:
+        s = f"{self.interface} {self.channel}"
+        if self.bitrate is not None:
+            s += f" @ {self.bitrate} bit/s"
+        if self.interface == "virtual":
+            s += (" (python-can's in-process virtual bus: another process - a cantrack command,"
+                  " a rig - is never on it)")
+        return s
 
 
 @pytest.fixture(scope="session")
@@ -176,7 +242,23 @@ def hil_bus_config(pytestconfig: pytest.Config) -> HilBus:
         pytest.skip(HIL_HINT)
     bc = pytestconfig.getoption("--bus-config")
     return HilBus(interface=iface, channel=chan, bitrate=pytestconfig.getoption("--can-bitrate"),
-                  bus_config=Path(bc).resolve() if bc else None)
+                  bus_config=Path(bc).resolve() if bc else None,
+                  run_duration_s=pytestconfig.getoption("--hil-duration"),
+                  engage_at_s=pytestconfig.getoption("--hil-engage-at"),
+                  disengage_at_s=pytestconfig.getoption("--hil-disengage-at"),
+                  decoder=pytestconfig.getoption("--hil-decoder"),
+                  wait_nodes_s=pytestconfig.getoption("--hil-wait-nodes"))
+
+
+@pytest.fixture(scope="session")
+def hil_rig(hil_bus_config: HilBus) -> HilBus:
+    """:class:`HilBus` of a rig with its bus configuration: skips without a real bus (as
+    ``hil_bus_config``); *fails* when the bus is given but ``--bus-config`` is not (an
+    end-to-end test cannot know the rig's nodes, SYNC period and axes without it)."""
+    if hil_bus_config.bus_config is None:
+        pytest.fail("hil end-to-end tests need the rig's configuration: add --bus-config "
+                    "rig.yml (see docs/hil.md)", pytrace=False)
+    return hil_bus_config
 
 
 def pytest_report_header(config: pytest.Config) -> list[str]:
