@@ -332,3 +332,58 @@ def test_unsupported_mode_is_refused(bus):
         m.sdo(11).download(0x6060, 0, b"\x03")  # PV: 6502h has PP, HM and CSP only
     m.sdo(11).download(0x6060, 0, b"\x08")
     assert m.sdo(11).upload_int(0x6061, 0) == 8
+
+
+@pytest.mark.parametrize("switch", [(4_003_333, 4_100_000),  # a wide switch: entered
+                                    (4_003_333, 4_003_500)])  # passed within one step
+def test_touch_probe_wired_to_home_switch_latches_the_exact_edge(tmp_path, switch):
+    # probe_input: home: the probe input follows the home switch; the latch is where the
+    # servo path crosses the switch edge within the step, not the position at the SYNC
+    from dataclasses import replace
+    cfg = load(tmp_path)
+    sim = cfg.simulation
+    devices = dict(sim.devices)
+    devices["x"] = replace(devices["x"], home_switch=switch, probe_input="home")
+    object.__setattr__(cfg, "simulation", replace(sim, devices=devices))
+    world = SimWorld(cfg)
+    m = RawMaster(world)
+    m.run(10)
+    configure_csp(m)
+    m.nmt(0x01, 11)
+    drive = world.device("x")
+    enable(m, 0x20B, 4_000_000)
+    sdo = m.sdo(11)
+    sdo.download(0x60B8, 0, struct.pack("<H", 0x0011))  # probe 1, single shot, positive edge
+    assert sdo.upload_uint(0x60B9, 0) == 0x0001
+    samples = []
+    for target in range(4_002_000, 4_012_000, 2000):  # 2000 counts per SYNC
+        m.sync({0x20B: rpdo(0x0F, target)})
+        samples.append(drive.x)
+    assert all(abs(x - switch[0]) > 100 for x in samples)  # no sample near the edge
+    assert sdo.upload_uint(0x60B9, 0) & 0x0003 == 0x0003
+    assert sdo.upload_int(0x60BA, 0) == switch[0]  # exact, not a sample position
+    on = switch[0] <= drive.x <= switch[1]
+    assert bool(drive.load(0x60FD) & (1 << 17)) == on == bool(drive.load(0x60FD) & (1 << 2))
+    # back out and in again: single shot, the first latch stays
+    for target in (3_990_000, 3_990_000, 4_010_000, 4_010_000):
+        m.sync({0x20B: rpdo(0x0F, target)})
+    assert sdo.upload_int(0x60BA, 0) == switch[0]
+    world.close()
+
+
+def test_probe_input_home_in_the_simulation_section(tmp_path):
+    from controller.canopen.config import load_bus_config
+    from controller.canopen.testing import bus_yml_text
+    from controller.errors import ConfigError
+    text = bus_yml_text(("x",))
+    assert "  x: {initial_counts: " in text
+    p = tmp_path / "bus.yml"
+    p.write_text(text.replace("  x: {initial_counts: ",
+                              "  x: {home_switch: [0, 10], probe_input: home, initial_counts: "))
+    assert load_bus_config(p).simulation.devices["x"].probe_input == "home"
+    p.write_text(text.replace("  x: {initial_counts: ", "  x: {probe_input: home, initial_counts: "))
+    with pytest.raises(ConfigError, match="probe_input.*home_switch"):
+        load_bus_config(p)
+    p.write_text(text.replace("  x: {initial_counts: ", "  x: {probe_input: homr, initial_counts: "))
+    with pytest.raises(ConfigError, match=r"bus.yml:\d+.*probe_input.*did you mean"):
+        load_bus_config(p)

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import itertools
 import math
+import struct
 from pathlib import Path
 
 import pytest
@@ -602,3 +603,154 @@ def test_gotoy_limit_switch_holds_at_actual(tmp_path):
     assert r.result == "ERROR_LIMIT_SWITCH"
     assert r.targets[-1] == r.end_counts  # held where the drive stopped at the switch
     assert abs(r.setpoint_mm - r.end_mm) <= 1 / CPM
+
+
+# -- GotoY with the drive's touch probe (homing.touch_probe) -----------------------------------
+PROBE_SIM = SWITCHES + ", probe_input: home"  # the home switch also wired to the probe input
+SWITCH_EDGE = 2000  # counts: the home switch [-2000, 2000] becomes active here (homing -1)
+
+
+def _home_y(tmp_path, *, touch_probe: bool, initial: int = 300000, offset: float = 0.0,
+            sim: str = PROBE_SIM, record: bool = False):
+    """Home y in a session of its own: (report, drive, recorded frames)."""
+    from controller.canopen.world import SimWorld
+    homing = GOTOY.replace("}", f", home_offset: {offset}, "
+                                f"touch_probe: {'true' if touch_probe else 'false'}}}")
+    cfg = cfg_of(tmp_path, initial=initial, homing=homing, sim=sim)
+    with SimWorld(cfg, record=record) as world:
+        ctl = am.MotionController(cfg, world.transport, [am.GotoYJob(am._axis(cfg, "y"),
+                                                                     cfg.period_s)])
+        (r,) = am.run_jobs(ctl)
+        frames = world.recorder.frames if record else []
+        return r, world.device("y"), frames
+
+
+def _switch_error_counts(dev, offset: float) -> float:
+    """Where the physical switch edge reads now, minus where it should (home offset)."""
+    return SWITCH_EDGE + dev._home_shift - offset * CPM
+
+
+@pytest.mark.parametrize("initial, offset", [(300000, 0.0), (50000, 2.5)])
+def test_gotoy_touch_probe_latches_the_switch_edge(tmp_path, initial, offset):
+    # without the probe: the sensor latch is the setpoint of the sample in which 60FDh bit 2
+    # was read -- late by the drive's delay at the creep speed (10 mm/s * 2 ms = 200 counts
+    # per sample): ~0.03-0.04 mm
+    r0, dev0, _ = _home_y(tmp_path, touch_probe=False, initial=initial, offset=offset)
+    assert r0.ok, r0.message
+    assert r0.latch_source == "sensor" and r0.probe_latched_mm is None
+    sensor_error = _switch_error_counts(dev0, offset)
+    assert 200 < abs(sensor_error) < 600
+    assert r0.latched_mm * CPM - SWITCH_EDGE == pytest.approx(-abs(sensor_error), abs=1)
+    # with it: the drive's latch of 6064h at the edge (60BAh); home within 1 count
+    r, dev, _ = _home_y(tmp_path, touch_probe=True, initial=initial, offset=offset)
+    assert r.ok, r.message
+    assert r.states[0] == "ARM_PROBE" and r.states[-3:] == ["STOP", "SET_POSITION", "CSP"]
+    assert r.latch_source == "touch probe"
+    assert abs(_switch_error_counts(dev, offset)) <= 1
+    assert r.probe_latched_counts == SWITCH_EDGE
+    assert r.latched_mm == r.probe_latched_mm == SWITCH_EDGE / CPM
+    # the sensor latch is the same as without the probe (same motion), the difference is
+    # reported in mm and counts
+    assert r.sensor_latched_mm == r0.sensor_latched_mm == r0.latched_mm
+    assert r.latch_difference_mm == pytest.approx(r.probe_latched_mm - r.sensor_latched_mm)
+    assert r.latch_difference_counts == round(r.latch_difference_mm * CPM)
+    assert abs(r.latch_difference_counts - abs(sensor_error)) <= 1
+    # the set position makes the latched edge read the home offset, as before
+    assert r.set_after_counts == round((offset + r.set_before_mm - r.latched_mm) * CPM)
+    out = r.summary()
+    assert "latch:    touch probe 0.2000 mm (60BAh 2000 counts); sensor" in out
+    assert f"({r.latch_difference_counts:+d} counts)" in out
+    check_stream(gotoy_part(r))
+
+
+def test_gotoy_touch_probe_sdos_on_the_bus(tmp_path):
+    r, _, frames = _home_y(tmp_path, touch_probe=True, record=True)
+    assert r.ok, r.message
+    node = 12  # y
+    # frames in bus order, by index (the stepped clock gives SDOs no duration)
+    requests = [(i, struct.unpack_from("<BHB", d), d) for i, (_, c, d) in enumerate(frames)
+                if c == 0x600 + node]
+    probe = [(i, cmd, index, d) for i, (cmd, index, sub), d in requests
+             if index in (0x60B8, 0x60B9, 0x60BA)]
+    # arm: 60B8h = 0 (clears), = 0011h (enable, single shot, positive edge, probe input),
+    # check 60B9h; after DNP: read 60B9h and 60BAh -- 5 requests, in this order
+    assert [(cmd, index) for _, cmd, index, _ in probe] == [
+        (0x2B, 0x60B8), (0x2B, 0x60B8), (0x40, 0x60B9), (0x40, 0x60B9), (0x40, 0x60BA)]
+    assert struct.unpack_from("<H", probe[0][3], 4)[0] == 0x0000
+    assert struct.unpack_from("<H", probe[1][3], 4)[0] == 0x0011
+    # the answers: armed (0001h), then stored (0003h) with 2000 counts
+    responses = [d for _, c, d in frames if c == 0x580 + node]
+    assert b"\x4b\xb9\x60\x00\x01\x00\x00\x00" in responses
+    assert b"\x4b\xb9\x60\x00\x03\x00\x00\x00" in responses
+    assert b"\x43\xba\x60\x00" + struct.pack("<i", SWITCH_EDGE) in responses
+    # armed before the axis moves (607Ah in RPDO1 still the start), read once 60FDh bit 2
+    # has been sent, while the push-in runs (607Ah still changing afterwards)
+    rpdo = [(i, struct.unpack_from("<Hi", d)[1]) for i, (_, c, d) in enumerate(frames)
+            if c == 0x200 + node]
+    first_move = next(i for i, target in rpdo if target != rpdo[0][1])
+    assert probe[2][0] < first_move
+    home_seen = next(i for i, (_, c, d) in enumerate(frames)
+                     if c == 0x280 + node and struct.unpack_from("<I", d)[0] & am.DI_HOME)
+    assert home_seen < probe[3][0] < probe[4][0]
+    later = [target for i, target in rpdo if i > probe[4][0]]
+    assert len(set(later[:10])) > 1  # still moving (push-in / back-off) after the read
+
+
+def test_gotoy_touch_probe_never_latches_is_an_error(tmp_path):
+    # touch_probe: true, but the switch is not wired to the probe input: no edge stored
+    r, dev, _ = _home_y(tmp_path, touch_probe=True, initial=50000, sim=SWITCHES)
+    assert not r.ok
+    assert r.result == "ERROR_SENSOR"
+    assert "60B9h = 0001h, bit 1 clear" in r.message and "touch-probe-1 input" in r.message
+    assert "stopped (jerk-limited)" in r.message
+    assert r.states == ["ARM_PROBE", "SMALL_V", "DOGE", "ABORT", "STOP"]  # no position set
+    assert r.latch_source is None and r.probe_latched_mm is None
+    assert r.set_after_counts is None
+    assert r.end_counts == r.targets[-1]  # at rest on the last setpoint
+    assert int(dev.load(0x6061, 0)) == 8  # still CSP
+    check_stream(r)
+
+
+def test_gotoy_touch_probe_starting_on_the_switch_keeps_the_sensor_latch(tmp_path):
+    # on both sensors at the start (DOGE at once): armed on an active input, no edge can
+    # come; the start position is home, as without the probe, and the report says why
+    r, _, _ = _home_y(tmp_path, touch_probe=True, initial=1000)
+    assert r.ok, r.message
+    assert r.states[:2] == ["ARM_PROBE", "DOGE"]
+    assert r.latch_source == "sensor" and r.latched_mm == pytest.approx(0.1)
+    assert "home switch was active at the start" in r.summary()
+
+
+def test_touch_probe_config_errors(tmp_path, monkeypatch):
+    p = tmp_path / "bus.yml"
+    p.write_text(yml_text(homing="{method: gotoy, touch_probe: 1}"))
+    with pytest.raises(ConfigError, match=r"bus.yml:\d+.*touch_probe.*true or false"):
+        load_bus_config(p)
+    p.write_text(yml_text(homing="{method: drive, drive_method: 21, touch_probe: true}"))
+    with pytest.raises(ConfigError, match=r"touch_probe.*only applies to method gotoy"):
+        load_bus_config(p)
+    p.write_text(yml_text(homing="{method: gotoy, touch_prob: true}"))
+    with pytest.raises(ConfigError, match="touch_prob.*did you mean 'touch_probe'"):
+        load_bus_config(p)
+    from controller.canopen import tracking_config as tc
+    monkeypatch.setattr(tc, "TOUCH_PROBE_OBJECTS",
+                        tc.TOUCH_PROBE_OBJECTS + ((0x60BB, "touch probe 1 negative edge"),))
+    p.write_text(yml_text(homing="{method: gotoy, touch_probe: true}"))
+    with pytest.raises(ConfigError, match=r"touch_probe.*missing 60BBh"):
+        load_bus_config(p)
+    p.write_text(yml_text(homing="{method: gotoy}"))
+    assert am._axis(load_bus_config(p), "y").homing.touch_probe is False
+
+
+def test_max_time_while_arming_the_touch_probe(tmp_path):
+    # time is up in the cycle the probe would be armed: nothing moved, the job ends there
+    from controller.canopen.world import SimWorld
+    cfg = cfg_of(tmp_path, homing=GOTOY.replace("}", ", touch_probe: true}"), sim=PROBE_SIM)
+    with SimWorld(cfg) as world:
+        ctl = am.MotionController(cfg, world.transport, [am.GotoYJob(am._axis(cfg, "y"),
+                                                                     cfg.period_s)])
+        (r,) = am.run_jobs(ctl, 0.032)
+        assert int(world.device("y").load(0x60B8, 0)) == 0  # never armed
+    assert r.result == "ERROR_TIMEOUT" and r.message.endswith(": not started")
+    assert r.states == ["ARM_PROBE"]
+    assert r.end_counts == 300000 and not _reactions(ctl)

@@ -355,3 +355,65 @@ def test_seeded_random_homing_sweep():
         else:
             assert last.result is MotionResult.ERROR_SENSOR and last.message
     assert finished >= 50
+
+
+# ------------------------------------------------------------------------------------------
+# refine_latch: a more precise latch (e.g. the drive's touch probe) replaces the sensor's
+# ------------------------------------------------------------------------------------------
+
+def _run_until(homing, world, state, max_samples=100_000):
+    """Feed ``world``'s sensors until ``homing`` is in ``state``; the outputs so far."""
+    outs = []
+    for _ in range(max_samples):
+        x = homing.output.position_mm
+        outs.append(homing.update(slow_down=x <= world.dss_mm, home=x <= world.dnp_mm,
+                                  limit_neg=x <= world.neg_limit_mm,
+                                  limit_pos=x >= world.pos_limit_mm))
+        if homing.state is state:
+            return outs
+    raise AssertionError(f"never reached {state}")
+
+
+@pytest.mark.parametrize("when", [S.DOGE, S.BACK])
+def test_refine_latch_replaces_the_home_offset(when):
+    world = World()
+    homing = GotoY(config(), position_mm=100.0)
+    with pytest.raises(StateError, match="STOP"):
+        homing.refine_latch(5.0)  # not started
+    homing.start()
+    with pytest.raises(StateError, match="BRAKE"):
+        homing.refine_latch(5.0)  # nothing latched yet
+    outs = _run_until(homing, world, S.SMALL_V)
+    with pytest.raises(StateError, match="SMALL_V"):
+        homing.refine_latch(5.0)  # home not seen yet
+    outs += _run_until(homing, world, when)
+    sensor = homing.latched_mm
+    assert sensor == homing.sensor_latched_mm and sensor < 5.0  # one creep step late
+    with pytest.raises(ParameterError, match="position_mm"):
+        homing.refine_latch(float("nan"))
+    homing.refine_latch(5.0)  # the exact switch position
+    assert homing.latched_mm == 5.0 and homing.sensor_latched_mm == sensor
+    outs += world.run(homing)
+    last = outs[-1]
+    assert last.result is MotionResult.FINISHED
+    assert last.home_offset_mm == homing.home_offset_mm == 5.0
+    # the motion is not re-planned: push-in from the sensor latch, then back-off
+    doge_end = next(o for o in outs if o.state is S.BACK).position_mm
+    assert doge_end == pytest.approx(sensor - 0.1, abs=1e-9)
+    assert last.position_mm == pytest.approx(doge_end + 2.0, abs=1e-9)
+    with pytest.raises(StateError, match="STOP"):
+        homing.refine_latch(4.0)  # finished: too late
+    assert homing.home_offset_mm == 5.0
+    # a new run starts without either latch
+    homing.start()
+    assert homing.latched_mm is None and homing.sensor_latched_mm is None
+
+
+def test_refine_latch_not_after_an_abort():
+    homing = GotoY(config(), position_mm=100.0)
+    homing.start()
+    _run_until(homing, World(), S.DOGE)
+    homing.stop()
+    assert homing.state is S.ABORT
+    with pytest.raises(StateError, match="ABORT"):
+        homing.refine_latch(5.0)

@@ -23,6 +23,20 @@ one session -- one boot, one enable -- and :func:`home` homes several axes that 
   home offset + (6064h - latched home), controlword bit 4 until "homing attained", then
   607Ah = 6064h and 6060h = 8 again (SDO between two cycles, as for the drive's homing);
   the report has the latched position and 6064h before/after the set.
+  With ``homing.touch_probe: true`` (the home switch is also wired to the drive's
+  touch-probe-1 input) the latch is the drive's instead of the setpoint of the sample in
+  which the switch was read (one sample or more late at the creep speed): before the search
+  (one cycle holding, state ARM_PROBE) 60B8h = 0 then 0011h (probe 1 enabled, first event,
+  positive edge, source = the probe input) by SDO, checked by 60B9h (bit 0 set, bit 1
+  clear); once GotoY has seen the home sensor (DOGE), 60B9h and 60BAh are read by SDO
+  (between two cycles, while the push-in runs) and 60BAh (6064h latched at the edge, counts)
+  replaces the latch (:meth:`GotoY.refine_latch <controller.motion.GotoY.refine_latch>`).
+  No positive edge stored (60B9h bit 1 clear) -- the switch is not wired to the probe
+  input, or the probe is broken -- fails the homing (``ERROR_SENSOR``, the message names
+  60B9h; GotoY stops jerk-limited): no silent fall-back to the less precise latch.  Only when
+  the axis starts on the home switch (DOGE at once: no edge can occur) the sensor latch is
+  kept, and the report says so.  The report has which latch was used (``latch_source``),
+  both latches and their difference.
 * :class:`DriveHomingJob` -- the drive's own homing mode: 6098h/6099h/609Ah/607Ch by SDO,
   6060h = 6, controlword bit 4 (after one cycle with it low), then statusword bit 12 (homing
   attained, with bit 10) or bit 13 (homing error) within the configured time-out; then
@@ -124,11 +138,30 @@ class MotionReport:
     set_after_counts: int | None = None
     set_before_mm: float | None = None
     set_after_mm: float | None = None
+    #: GotoY: which latch is home: "sensor" (setpoint of the sample DNP was read) or
+    #: "touch probe" (the drive's 60BAh); None if homing did not latch
+    latch_source: str | None = None
+    #: GotoY: the sensor latch [mm] (also when the touch probe's replaced it)
+    sensor_latched_mm: float | None = None
+    #: GotoY with touch_probe: 60BAh [counts] and in mm; None if not read / not stored
+    probe_latched_counts: int | None = None
+    probe_latched_mm: float | None = None
+    #: GotoY with touch_probe: 60BAh - the sensor latch in counts (None unless both)
+    latch_difference_counts: int | None = None
+    #: GotoY with touch_probe: why the sensor latch was kept (e.g. started on the switch)
+    latch_note: str = ""
     time_s: float = 0.0  #: from the job's start to its end
     cycles: int = 0
     targets: list[int] = field(default_factory=list)  #: 607Ah sent each cycle [counts]
     actuals: list[int] = field(default_factory=list)  #: 6064h received each cycle [counts]
     inputs: list[int] = field(default_factory=list)  #: 60FDh each cycle (homing)
+
+    @property
+    def latch_difference_mm(self) -> float | None:
+        """Touch-probe latch - sensor latch [mm] (None unless both exist)."""
+        if self.probe_latched_mm is None or self.sensor_latched_mm is None:
+            return None
+        return self.probe_latched_mm - self.sensor_latched_mm
 
     @property
     def homed_end_mm(self) -> float | None:
@@ -150,6 +183,19 @@ class MotionReport:
             lines.append(f"  position set: {self.set_before_mm:.4f} -> {self.set_after_mm:.4f} "
                          f"{unit} ({self.set_before_counts} -> {self.set_after_counts} counts; "
                          f"home latched at {self.latched_mm:.4f} {unit})")
+        if self.latch_source is not None:
+            line = f"  latch:    {self.latch_source}"
+            if self.latch_difference_mm is not None:
+                diff = self.latch_difference_mm
+                line += (f" {self.probe_latched_mm:.4f} {unit} (60BAh "
+                         f"{self.probe_latched_counts} counts); sensor "
+                         f"{self.sensor_latched_mm:.4f} {unit}; difference {diff:+.4f} {unit}"
+                         f" ({self.latch_difference_counts:+d} counts)")
+            elif self.sensor_latched_mm is not None:
+                line += f" {self.sensor_latched_mm:.4f} {unit}"
+            if self.latch_note:
+                line += f" ({self.latch_note})"
+            lines.append(line)
         if self.home_offset_mm is not None:
             lines.append(f"  home offset: {self.home_offset_mm:.4f} {unit} (end at "
                          f"{self.homed_end_mm:.4f} {unit} in homed coordinates)")
@@ -423,8 +469,18 @@ class GotoYJob(_SetpointJob):
             m.brake_release_s, m.brake_engage_s,
             HomingTimeouts(total_s=h.timeout_s, **dict(h.state_timeouts)))
         self.obj: GotoY | None = None
+        self.touch_probe = h.touch_probe
+        #: arm (touch probe, holding) | gotoy | settle | setup | low | run | back | csp
+        self.phase = "arm" if self.touch_probe else "gotoy"
+        self._probe_read = False
 
     needs_inputs = True
+
+    #: 60B8h: probe 1 enabled (bit 0), first event (bit 1 = 0), trigger = the probe-1
+    #: input (bits 2-3 = 00), latch on the positive edge (bit 4)
+    PROBE_FUNCTION = 0x0011
+    PROBE_ENABLED = 0x0001  #: 60B9h bit 0: probe 1 enabled
+    PROBE_STORED = 0x0002  #: 60B9h bit 1: positive-edge value stored in 60BAh
 
     def start(self, ctl: MotionController, k: int, actual_mm: float) -> None:
         super().start(ctl, k, actual_mm)
@@ -439,8 +495,58 @@ class GotoYJob(_SetpointJob):
                                limit_pos=bool(di & DI_POS_LIMIT))
 
     def ended(self, out) -> None:
-        self.report.home_offset_mm = out.home_offset_mm
-        self.report.latched_mm = out.home_offset_mm
+        r = self.report
+        r.home_offset_mm = out.home_offset_mm
+        r.latched_mm = out.home_offset_mm
+        r.sensor_latched_mm = self.obj.sensor_latched_mm if self.obj is not None else None
+        if out.home_offset_mm is not None:
+            r.latch_source = "touch probe" if r.probe_latched_mm is not None else "sensor"
+
+    # -- touch probe 1 (homing.touch_probe) ---------------------------------------------------
+    def _arm_probe(self) -> None:
+        """60B8h = 0 (disarm, clears 60B9h), then the function: a fresh single shot."""
+        sdo = self.sdo
+        sdo.download(0x60B8, 0, (0).to_bytes(2, "little"))
+        sdo.download(0x60B8, 0, self.PROBE_FUNCTION.to_bytes(2, "little"))
+        status = sdo.upload_uint(0x60B9, 0)
+        if not status & self.PROBE_ENABLED or status & self.PROBE_STORED:
+            raise MotionError(
+                f"axis {self.ax.name}: touch probe 1 not armed: 60B9h = {status:04X}h after "
+                f"60B8h = {self.PROBE_FUNCTION:04X}h (bit 0 'enabled' expected, bit 1 "
+                f"'stored' clear)")
+
+    def _read_probe(self, ctl: MotionController) -> None:
+        """Home has been seen (DOGE): the drive's latch replaces the sensor's."""
+        self._probe_read = True
+        obj, r, sc = self.obj, self.report, self.ax.scale
+        unit = "deg" if self.ax.name == "c" else "mm"
+        if "SMALL_V" not in r.states:
+            # on the home switch at the start (DOGE at once): the input was active when the
+            # probe was armed, no edge can come; the (less precise) start position is home
+            r.latch_note = "touch probe not used: the home switch was active at the start"
+            return
+        try:
+            status = self.sdo.upload_uint(0x60B9, 0)
+            counts = self.sdo.upload_int(0x60BA, 0) if status & self.PROBE_STORED else None
+        except CanError as exc:
+            self._probe_failed(f"touch probe 1 could not be read: {exc}")
+            return
+        if counts is None:
+            self._probe_failed(
+                f"touch probe 1 stored no positive edge (60B9h = {status:04X}h, bit 1 clear) "
+                f"although the home sensor (60FDh bit 2) was seen at "
+                f"{obj.sensor_latched_mm:.4f} {unit}: is the home switch wired to the "
+                f"drive's touch-probe-1 input (homing.touch_probe)?")
+            return
+        r.probe_latched_counts = counts
+        r.probe_latched_mm = sc.from_counts(counts)
+        r.latch_difference_counts = counts - sc.to_counts(obj.sensor_latched_mm)
+        obj.refine_latch(r.probe_latched_mm)
+
+    def _probe_failed(self, message: str) -> None:
+        if self._abort is None and self._error is None:
+            self._abort = ("ERROR_SENSOR", message)
+            self.obj.stop()  # jerk-limited from the push-in, then the brake
 
     # -- the end: set the drive's position (homing mode, method 37) ---------------------------
     #: 6098h method "current position as home" (37; 35 is its older number, same meaning)
@@ -477,6 +583,11 @@ class GotoYJob(_SetpointJob):
         return self.phase in ("low", "run", "back")
 
     def request_stop(self, ctl: MotionController, result: str, message: str) -> float:
+        if self.phase == "arm":  # not moved yet
+            self.phase = "gotoy"
+            self.report.setpoint_mm = self.report.start_mm
+            self.finish(ctl, ctl.k, False, result, f"{message}: not started")
+            return 0.0
         if self.phase == "gotoy":
             return super().request_stop(ctl, result, message)
         # GotoY is done and the axis at rest: the drive's position is being set (no
@@ -488,7 +599,23 @@ class GotoYJob(_SetpointJob):
         super().finish(ctl, k, False, "ERROR_SET_POSITION", message)
 
     def between(self, ctl: MotionController) -> None:
-        if self.done or self.phase not in ("setup", "back"):
+        if self.done:
+            return
+        if self.phase == "arm":
+            self.phase = "gotoy"
+            try:
+                self._arm_probe()
+            except CanError as exc:  # at rest, nothing moved: the job ends here
+                self.finish(ctl, ctl.k, False, "ERROR_SENSOR", str(exc))
+            return
+        if self.phase == "gotoy":
+            obj = self.obj
+            if (self.touch_probe and not self._probe_read and obj is not None
+                    and obj.state in GotoY.REFINE_STATES and obj.latched_mm is not None
+                    and self._abort is None and self._error is None):
+                self._read_probe(ctl)
+            return
+        if self.phase not in ("setup", "back"):
             return
         sdo, sc, r = self.sdo, self.ax.scale, self.report
         if self.phase == "setup":
@@ -513,6 +640,11 @@ class GotoYJob(_SetpointJob):
             self.state("CSP")
 
     def cycle(self, ctl: MotionController, k: int) -> tuple[int, int]:
+        if self.phase == "arm":  # hold while touch probe 1 is armed (SDO, after this cycle)
+            self.state("ARM_PROBE")
+            self._hold = self.io.hold
+            self.report.setpoint_mm = self.ax.scale.from_counts(self._hold)
+            return cia402.CW_ENABLE, self._hold
         if self.phase == "gotoy":
             out = super().cycle(ctl, k)
             self._hold = out[1]

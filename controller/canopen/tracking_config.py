@@ -38,6 +38,13 @@ scales).  Keys (``*`` = required)::
               home_offset: 0         # none: raw position [mm] of the axis' 0;
                                      #   drive: 607Ch [mm]; gotoy: what the latched
                                      #   home reads afterwards [mm] (drive position set)
+              touch_probe: false     # gotoy: the home switch is also wired to the drive's
+                                     #   touch-probe-1 input: 60B8h armed (SDO) before the
+                                     #   search, home = the drive's latch of 6064h at the
+                                     #   switch edge (60BAh, read by SDO once DNP is seen)
+                                     #   instead of the setpoint of the sample; no edge
+                                     #   stored (60B9h bit 1) is an error.  The drive's EDS
+                                     #   must have 60B8h, 60B9h, 60BAh
               drive_method: 19       # drive: 6098h
               switch_vel: 50         # drive: 6099h:01 [mm/s]
               zero_vel: 5            # drive: 6099h:02 [mm/s]
@@ -130,6 +137,7 @@ class AxisHomingConfig:
     switch_vel: float | None = None
     zero_vel: float | None = None
     drive_acc: float | None = None
+    touch_probe: bool = False
 
 
 @dataclass(frozen=True, slots=True)
@@ -275,7 +283,7 @@ def _axes(s: Section, cfg: BusConfig, conveyor: ConveyorConfig) -> tuple[AxisCon
         scale = AxisScale(str(name), cpu, a.float("zero", 0.0),
                           a.int("sign", 1, allowed=(1, -1)), lo, hi)
         motion = _axis_motion(a.section("motion", None))
-        homing = _axis_homing(a.section("homing", None), motion)
+        homing = _axis_homing(a.section("homing", None), motion, cfg, node)
         a.finish()
         rp = pdos[node].find("rpdo", [(0x6040, 0), (0x607A, 0)])
         tp = pdos[node].find("tpdo", [(0x6041, 0), (0x6064, 0)])
@@ -305,7 +313,13 @@ def _axis_motion(s: Section | None) -> AxisMotionConfig:
     return out
 
 
-def _axis_homing(s: Section | None, motion: AxisMotionConfig) -> AxisHomingConfig | None:
+#: touch probe 1 objects GotoY uses with ``touch_probe: true``
+TOUCH_PROBE_OBJECTS = ((0x60B8, "touch probe function"), (0x60B9, "touch probe status"),
+                       (0x60BA, "touch probe 1 positive edge position"))
+
+
+def _axis_homing(s: Section | None, motion: AxisMotionConfig, cfg: BusConfig | None = None,
+                 node: str | None = None) -> AxisHomingConfig | None:
     if s is None:
         return None
     d = AxisHomingConfig()
@@ -337,7 +351,17 @@ def _axis_homing(s: Section | None, motion: AxisMotionConfig) -> AxisHomingConfi
         drive_method=drive_method,
         switch_vel=s.float("switch_vel", None, above=0.0),
         zero_vel=s.float("zero_vel", None, above=0.0),
-        drive_acc=s.float("drive_acc", None, above=0.0))
+        drive_acc=s.float("drive_acc", None, above=0.0),
+        touch_probe=s.bool("touch_probe", False))
+    if out.touch_probe and method != "gotoy":
+        raise s.error("touch_probe", f"(=true) only applies to method gotoy, not {method}")
+    if out.touch_probe and cfg is not None and node is not None:
+        missing = [f"{index:04X}h ({what})" for index, what in TOUCH_PROBE_OBJECTS
+                   if odm.variable(cfg.ods[node], index, 0) is None]
+        if missing:
+            raise s.error("touch_probe", f"(=true) needs touch probe 1 in the drive's EDS "
+                                         f"{cfg.slaves[node].dcf.name}: missing "
+                                         + ", ".join(missing))
     s.finish()
     return out
 

@@ -22,7 +22,10 @@ Readings chosen where the thesis is silent:
   the creep speed, from rest, then the brake engages.
 * Home is *latched* at the setpoint held when ``update()`` receives the first true DNP
   reading, i.e. the previous sample's setpoint, where the sensor was read; resolution one
-  sample (creep*T).  The CAN shell may refine it with the drive's touch probe (60B8h).  When both sensors are active
+  sample (creep*T).  The CAN shell may refine it with the drive's touch probe (60B8h):
+  :meth:`GotoY.refine_latch` replaces the latched position (and so the home offset) while
+  the push-in or the back-off runs (DOGE, BACK), e.g. with the drive's hardware latch of
+  6064h at the switch edge (60BAh), which has no sample delay.  When both sensors are active
   at the start (DOGE at once) the start position is latched (no approach, less precise).
   At the end ``home_offset_mm`` = the latched position: afterwards the axis coordinate is
   ``position - home_offset_mm``, so the home switch is at 0.
@@ -239,6 +242,7 @@ class GotoY:
         self._result = MotionResult.IDLE
         self._message = ""
         self._latched_mm: float | None = None
+        self._sensor_latched_mm: float | None = None
         self._home_offset_mm: float | None = None
         self._output = self._make_output()
 
@@ -266,6 +270,37 @@ class GotoY:
         return self._home_offset_mm
 
     @property
+    def sensor_latched_mm(self) -> float | None:
+        """The latch from the sensor reading (setpoint of the sample DNP was first read true)
+        [mm], kept when :meth:`refine_latch` replaced :attr:`latched_mm` (``None`` until then)."""
+        return self._sensor_latched_mm
+
+    #: states in which :meth:`refine_latch` is allowed (home seen, homing not yet finished)
+    REFINE_STATES: ClassVar[frozenset[HomingState]] = frozenset({HomingState.DOGE,
+                                                                 HomingState.BACK})
+
+    def refine_latch(self, position_mm: float) -> None:
+        """Replace the latched home by a more precise ``position_mm`` [mm] (e.g. the drive's
+        touch-probe latch of the switch edge), in the same coordinate as the setpoints.
+
+        Allowed once home has been latched and until the back-off has ended (states DOGE and
+        BACK of a running homing): the home offset at the end is then ``position_mm``.  The
+        motion is not re-planned (push-in and back-off go on from where they are).  The
+        sensor latch stays available as :attr:`sensor_latched_mm`.
+
+        Raises:
+            ParameterError: ``position_mm`` is not finite.
+            StateError: not in DOGE or BACK (nothing latched yet, already finished, or
+                aborted); the message names the state.
+        """
+        require_finite("GotoY.refine_latch", "position_mm", position_mm, "mm")
+        if self._state not in self.REFINE_STATES or self._latched_mm is None \
+                or self._result is not MotionResult.WORKING:
+            raise StateError(f"GotoY.refine_latch(): only while the push-in or back-off runs "
+                             f"(DOGE, BACK), not in state {self._state.name}")
+        self._latched_mm = float(position_mm)
+
+    @property
     def profile(self) -> Profile | None:
         return self._follower.profile if self._follower is not None else None
 
@@ -290,6 +325,7 @@ class GotoY:
         self._result = MotionResult.WORKING
         self._message = ""
         self._latched_mm = None
+        self._sensor_latched_mm = None
         self._home_offset_mm = None
         self._follower = None
 
@@ -375,7 +411,7 @@ class GotoY:
     def _enter_doge(self) -> None:
         """Latch home here and push in ``push_in_mm`` at the creep speed, ending at rest."""
         cfg = self._config
-        self._latched_mm = self._kin.position_mm
+        self._latched_mm = self._sensor_latched_mm = self._kin.position_mm
         target = self._latched_mm + cfg.direction * cfg.push_in_mm
         ahead = cfg.direction * (target - self._kin.position_mm)
         if ahead >= cfg.direction * stopping_distance_mm(self._kin, cfg.limits):

@@ -17,7 +17,12 @@ Behaves like a real drive where a controller can get it wrong:
 - 60FDh digital inputs from the position: bit0 negative / bit1 positive limit switch, bit2
   home switch, bit16 slow-down sensor; bit17 the touch-probe input level.  Moving into an
   active limit switch is refused (the demand is held) and 6041h bit 11 is set;
-- touch probe 1 (60B8h-60BAh): latch 6064h on the rising edge of the probe input;
+- touch probe 1 (60B8h-60BAh): latch 6064h on the rising edge of the probe input.  The
+  input is set by :meth:`SimDrive.set_probe_input` (e.g. the demo's item sensor), or, with
+  ``probe_input="home"`` (``.simulation``: ``probe_input: home``), it is wired to the home
+  switch: its level follows 60FDh bit 2 and the latch is exact, as a drive latching in
+  hardware: the position where the servo model's path between the previous and the new
+  actual position of a step crosses the switch edge, not the position at the SYNC;
 - homing mode (6060h = 6, method 6098h, speed 6099h:01 [counts/s], offset 607Ch): started by
   a rising edge of controlword bit 4 in OPERATION ENABLED; methods 17/18 (negative /
   positive limit switch), 19-30 (home switch: 19, 20, 23-26 search in the positive
@@ -70,6 +75,16 @@ class DriveParams:
     positive_limit: int | None = None  # active at x >= this
     home_switch: tuple[int, int] | None = None  # active for lo <= x <= hi
     slow_down: tuple[int, int] | None = None
+    #: what drives the touch-probe-1 input: None (only set_probe_input) or "home" (wired to
+    #: the home switch: the level follows it, the latch is at the exact edge crossing)
+    probe_input: str | None = None
+
+    PROBE_INPUTS = (None, "home")
+
+    def __post_init__(self) -> None:
+        if self.probe_input not in self.PROBE_INPUTS:
+            raise ValueError(f"DriveParams.probe_input (={self.probe_input!r}) must be one of "
+                             f"{self.PROBE_INPUTS}")
 
 
 class SimDrive(SimNode):
@@ -99,6 +114,8 @@ class SimDrive(SimNode):
         self._home_shift = 0.0
         #: homing mode: None (not started), "run", "done" or "error"
         self.homing_status: str | None = None
+        if self.params.probe_input == "home":
+            self._probe_level = self._on_home_switch(self.x)
         self._enter(State.SWITCH_ON_DISABLED, 1)
         self._publish()
 
@@ -131,26 +148,62 @@ class SimDrive(SimNode):
 
     def disturb(self, counts: float) -> None:
         """Push the axis by ``counts`` (an external force): a following error if large."""
+        x0 = self.x - self._home_shift
         self.x += counts
+        self._follow_probe(x0)
         self._publish()
 
     def set_probe_input(self, level: bool) -> None:
-        """The touch-probe-1 input (60FDh bit 17); a rising edge latches 6064h if armed."""
+        """The touch-probe-1 input (60FDh bit 17); a rising edge latches 6064h if armed.
+
+        With ``probe_input="home"`` the input follows the home switch and the next servo
+        step sets it again."""
         level = bool(level)
         rising = level and not self._probe_level
         self._probe_level = level
-        if rising and self._probe_armed:
-            fn = int(self.load(0x60B8, 0))
-            if fn & 0x0010 and (fn >> 2) & 0x3 == 0:  # positive edge, source = probe input
-                self.store(0x60BA, 0, round(self.x))
-                if fn & 0x0002:  # continuous: bit 7 toggles with every new value
-                    self._probe_toggle = not self._probe_toggle
-                status = 0x0001 | 0x0002 | (0x0080 if self._probe_toggle else 0)
-                self.store(0x60B9, 0, status)
-                if not fn & 0x0002:  # single shot: ignore further edges until re-armed
-                    self._probe_armed = False
+        if rising:
+            self._probe_edge(self.x)
         self._publish()
         self.service_event_pdos(self.clock.now_ns())
+
+    def _probe_edge(self, position: float) -> None:
+        """A rising edge of the probe input at ``position`` [counts, reported coordinate]."""
+        if not self._probe_armed:
+            return
+        fn = int(self.load(0x60B8, 0))
+        if fn & 0x0010 and (fn >> 2) & 0x3 == 0:  # positive edge, source = probe input
+            self.store(0x60BA, 0, round(position))
+            if fn & 0x0002:  # continuous: bit 7 toggles with every new value
+                self._probe_toggle = not self._probe_toggle
+            status = 0x0001 | 0x0002 | (0x0080 if self._probe_toggle else 0)
+            self.store(0x60B9, 0, status)
+            if not fn & 0x0002:  # single shot: ignore further edges until re-armed
+                self._probe_armed = False
+
+    def _on_home_switch(self, x: float) -> bool:
+        """Home switch active at ``x`` [counts, reported coordinate]?"""
+        hs = self.params.home_switch
+        return hs is not None and hs[0] <= x - self._home_shift <= hs[1]
+
+    def _follow_probe(self, x0_phys: float) -> None:
+        """Probe input wired to the home switch: after a step from ``x0_phys`` (physical
+        coordinate, the switches') to the present position, update the level; a rising edge
+        latches where the path first enters the switch -- interpolated within the step
+        (the path x0 -> x1 is linear in the step; a switch passed over entirely within one
+        step is an edge too), as a drive latching in hardware would, not the SYNC sample."""
+        if self.params.probe_input != "home":
+            return
+        hs = self.params.home_switch
+        x1_phys = self.x - self._home_shift
+        level = self._on_home_switch(self.x)
+        if hs is not None and not self._probe_level:
+            lo, hi = hs
+            a, b = min(x0_phys, x1_phys), max(x0_phys, x1_phys)
+            if a <= hi and b >= lo:  # the path touches the switch: it became active
+                edge = max(lo, min(x0_phys, hi))  # where the path enters [lo, hi]
+                self._probe_edge(edge + self._home_shift)
+                self._probe_level = True
+        self._probe_level = level
 
     # -- state machine ---------------------------------------------------------------------
     def _enter(self, state: State, number: int) -> None:
@@ -328,7 +381,9 @@ class SimDrive(SimNode):
 
     # -- SimNode hooks ---------------------------------------------------------------------
     def on_sync(self, now_ns: int) -> None:
+        x0 = self.x - self._home_shift
         self._servo_step(self.dt_s)
+        self._follow_probe(x0)
         self._last_step_ns = now_ns
         self._apply_controlword()
         if self.state is State.OPERATION_ENABLED and self.mode == cia402.MODE_CSP \
@@ -412,6 +467,8 @@ class SimDrive(SimNode):
     def device_timer(self, now_ns: int) -> None:
         due = self.device_timer_ns()
         if due is not None and now_ns >= due:
+            x0 = self.x - self._home_shift
             self._servo_step(self.dt_s)
+            self._follow_probe(x0)
             self._last_step_ns = now_ns - int(self.dt_s * 1e9)
             self._publish()

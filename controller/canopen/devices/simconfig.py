@@ -19,6 +19,10 @@ Device units (counts) for the drives, mm and s for the belt.  Every key is optio
         positive_limit: 9000000    # bit1 active at x >= this
         home_switch: [0, 5000]     # bit2 active in [lo, hi] [counts]
         slow_down: [8000000, 9000000]   # bit16 active in [lo, hi]
+        probe_input: home          # touch-probe-1 input wired to the home switch (its level
+                                   #   follows bit2; 60BAh latches the exact edge position,
+                                   #   interpolated within the servo step); needs home_switch.
+                                   #   none (default): only SimDrive.set_probe_input sets it
 """
 
 from __future__ import annotations
@@ -107,6 +111,14 @@ def _drive(s: Section) -> DriveParams:
         negative_limit=s.int("negative_limit", None),
         positive_limit=s.int("positive_limit", None),
         home_switch=_range(s, "home_switch"),
-        slow_down=_range(s, "slow_down"))
+        slow_down=_range(s, "slow_down"),
+        probe_input=_probe_input(s))
     s.finish()
     return p
+
+
+def _probe_input(s: Section) -> str | None:
+    value = s.str("probe_input", "none", choices=("none", "home"))
+    if value == "home" and s.raw("home_switch", None) is None:
+        raise s.error("probe_input", "(=home) needs a home_switch: [lo, hi] on this drive")
+    return None if value == "none" else value
