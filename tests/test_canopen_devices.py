@@ -301,21 +301,27 @@ def test_touch_probe_latches_position(bus):
     assert sdo.upload_int(0x60BA, 0) == 1_234_567
 
 
-def test_limit_switches_and_home_on_60fd(tmp_path):
+def _enabled_x_drive(tmp_path, **sim_changes):
+    """The x drive (node 11) with these simulation parameters changed, configured for CSP,
+    started and enabled at 4,000,000 counts -> (world, master, drive)."""
     from dataclasses import replace
     cfg = load(tmp_path)
     sim = cfg.simulation
     devices = dict(sim.devices)
-    devices["x"] = replace(devices["x"], positive_limit=4_010_000, home_switch=(3_990_000,
-                                                                               4_001_000))
+    devices["x"] = replace(devices["x"], **sim_changes)
     object.__setattr__(cfg, "simulation", replace(sim, devices=devices))
     world = SimWorld(cfg)
     m = RawMaster(world)
     m.run(10)
     configure_csp(m)
     m.nmt(0x01, 11)
-    drive = world.device("x")
     enable(m, 0x20B, 4_000_000)
+    return world, m, world.device("x")
+
+
+def test_limit_switches_and_home_on_60fd(tmp_path):
+    world, m, drive = _enabled_x_drive(tmp_path, positive_limit=4_010_000,
+                                       home_switch=(3_990_000, 4_001_000))
     assert drive.load(0x60FD) == 1 << 2  # on the home switch
     for target in range(4_002_000, 4_030_000, 2000):
         m.sync({0x20B: rpdo(0x0F, target)})
@@ -339,19 +345,7 @@ def test_unsupported_mode_is_refused(bus):
 def test_touch_probe_wired_to_home_switch_latches_the_exact_edge(tmp_path, switch):
     # probe_input: home: the probe input follows the home switch; the latch is where the
     # servo path crosses the switch edge within the step, not the position at the SYNC
-    from dataclasses import replace
-    cfg = load(tmp_path)
-    sim = cfg.simulation
-    devices = dict(sim.devices)
-    devices["x"] = replace(devices["x"], home_switch=switch, probe_input="home")
-    object.__setattr__(cfg, "simulation", replace(sim, devices=devices))
-    world = SimWorld(cfg)
-    m = RawMaster(world)
-    m.run(10)
-    configure_csp(m)
-    m.nmt(0x01, 11)
-    drive = world.device("x")
-    enable(m, 0x20B, 4_000_000)
+    world, m, drive = _enabled_x_drive(tmp_path, home_switch=switch, probe_input="home")
     sdo = m.sdo(11)
     sdo.download(0x60B8, 0, struct.pack("<H", 0x0011))  # probe 1, single shot, positive edge
     assert sdo.upload_uint(0x60B9, 0) == 0x0001
