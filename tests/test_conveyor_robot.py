@@ -14,7 +14,7 @@ from controller.conveyor import (ITEM_MISSED_CODE, ConveyorCell, FrameBusyError,
                                  RobotGroup, SimulatedAxis, TooManyFramesError, Window)
 from controller.conveyor.location import q_axis_angle
 from controller.conveyor.telemetry import ItemStatus
-from controller.errors import StateError
+from controller.errors import ParameterError, StateError
 from controller.tracking import Imfs, Limits, TrackError, TrackerParams
 
 T = 0.002
@@ -552,3 +552,35 @@ def test_window_tracking_starts_inside_and_goes_on_with_the_next_item():
     assert r1.left_s == pytest.approx(400.0 / SPEED, abs=2 * T)
     assert robot.records[second.id].caught and robot.records[second.id].time_to_sync_s > 0
     assert len(robot.buffer) == 1
+
+
+def test_tracking_process_trigger_delay_correction_takes_the_latch_back_to_the_edge():
+    """Overview page, "Tracking Process": "a correction term is added to correct a delay of 1-2
+    samples between the trigger from the sensor to the start of the operation ... this delay
+    causes a gap in the position".  TRIGGER with the edge's age (or the frame's
+    trigger_delay_s) latches where the item was at the edge: exact for a constant-acceleration
+    belt; without the correction the gap is vel*delay."""
+    def accelerating(t):  # 100 mm/s + 200 mm/s^2
+        return 100.0 * t + 100.0 * t * t, 100.0 + 200.0 * t, 200.0
+
+    def at(t):
+        return accelerating(t)[0]
+
+    delayed = MovingFrame("late", [SimulatedAxis(accelerating)], trigger_delay_s=2 * T,
+                          window=Window.single(0.0, 1e6))
+    plain = MovingFrame("plain", [SimulatedAxis(accelerating)], window=Window.single(0.0, 1e6))
+    cell, robot = make([delayed, plain])
+    run(cell, 50)
+    k = delayed.sample
+    e_frame = robot.trigger(delayed)                  # the frame's delay: 2 samples
+    e_call = robot.trigger(plain, age_s=3 * T)        # the edge's age given by the caller
+    e_none = robot.trigger(plain)                     # no correction
+    assert e_frame.values[0] == pytest.approx(at((k - 2) * T), abs=1e-9)
+    assert e_call.values[0] == pytest.approx(at((k - 3) * T), abs=1e-9)
+    assert e_none.values[0] == pytest.approx(at(k * T), abs=1e-9)
+    gap = e_none.values[0] - at((k - 2) * T)          # what the correction removes
+    assert gap == pytest.approx((100.0 + 200.0 * k * T) * 2 * T, rel=0.05) and gap > 0.4
+    with pytest.raises(ParameterError, match=r"age \(=-0\.001\) must be >= 0 s"):
+        robot.trigger(plain, age_s=-0.001)
+    with pytest.raises(ParameterError, match="trigger delay"):
+        MovingFrame("bad", [SimulatedAxis(accelerating)], trigger_delay_s=math.nan)

@@ -94,7 +94,8 @@ class MovingFrame:
                  arc_point: Sequence[float] | None = None,
                  downstream: Sequence[float] | None = None, up_master: float = 0.0,
                  down_master: float | None = None, deg_per_unit: float | None = None,
-                 limits: FrameLimits = FrameLimits(), window: Window | None = None) -> None:
+                 limits: FrameLimits = FrameLimits(), window: Window | None = None,
+                 trigger_delay_s: float = 0.0) -> None:
         self.name = str(name)
         self.sources = tuple(sources)
         n = nof if nof is not None else (len(self.sources) or 1)
@@ -115,6 +116,13 @@ class MovingFrame:
         self.down_master = down_master
         self.deg_per_unit = deg_per_unit
         self.limits = limits
+        if not (isinstance(trigger_delay_s, (int, float)) and math.isfinite(trigger_delay_s)
+                and trigger_delay_s >= 0.0):
+            raise ParameterError(f"frame {name!r}: trigger delay (={trigger_delay_s!r}) must "
+                                 "be >= 0 s")
+        #: the delay from the sensor edge to the TRIGGER [s] (overview page, "Tracking
+        #: Process": the 1-2 sample delay "causes a gap in the position"; corrected at TRIGGER)
+        self.trigger_delay_s = float(trigger_delay_s)
         self.window = window if window is not None else Window.unlimited(self.nof)
         if self.window.nof != self.nof:
             raise ParameterError(f"frame {name!r}: the window has {self.window.nof} DOF(s), "
@@ -232,9 +240,18 @@ class MovingFrame:
             raise StateError(f"frame {self.name!r} has not been updated yet (no master values)")
         return self.master
 
-    def source_values(self) -> tuple[float, ...]:
-        """The current master source values (what TRIGGER latches)."""
-        return tuple(s.pos for s in self._require_master())
+    def source_values(self, age_s: float = 0.0) -> tuple[float, ...]:
+        """The master source values ``age_s`` before the last update (what TRIGGER latches).
+
+        ``age_s`` > 0 is the page's correction term for the delay between the sensor edge and
+        the TRIGGER: each source is taken back along its motion, pos - vel*d + acc*d^2/2
+        (exact for a constant-acceleration source), so the latched value is where the item was
+        at the edge, not ``vel*d`` further on.
+        """
+        if age_s == 0.0:
+            return tuple(s.pos for s in self._require_master())
+        return tuple(s.extrapolated(-age_s, with_acceleration=True).pos
+                     for s in self._require_master())
 
     # -- items ------------------------------------------------------------------------------
     def coords(self, item: TriggerEntry, master: Sequence[SourceState] | None = None

@@ -600,11 +600,14 @@ class RobotGroup:
 
     def trigger(self, frame: MovingFrame | str | None = None, *, ndof: int | None = None,
                 value: float | None = None, values: Sequence[float] | None = None,
-                dr_mm: float = 0.0, inverse: bool = False) -> TriggerEntry:
+                dr_mm: float = 0.0, inverse: bool = False,
+                age_s: float | None = None) -> TriggerEntry:
         """``TRIGGER <robot> {NDOF = ndof Value = value} {MasterFrame = frame}``.
 
-        The entry's master values are the frame's current source values (latched now), or
-        ``values`` (all DOFs), with DOF ``ndof`` (1-based) set to ``value`` if given.
+        The entry's master values are the frame's source values latched now, corrected for
+        the delay from the sensor edge (``age_s`` [s], default the frame's
+        ``trigger_delay_s``: taken back along the sources' motion), or ``values`` (all DOFs,
+        as given), with DOF ``ndof`` (1-based) set to ``value`` if given.
         ``dr_mm``: radius offset (rotary frames); ``inverse``: the window direction flag.
         Raises :class:`TriggerBufferFull` when the buffer is full.
         """
@@ -615,7 +618,11 @@ class RobotGroup:
         if values is not None:
             vals = [float(v) for v in values]
         elif isinstance(fr, MovingFrame):
-            vals = list(fr.source_values())
+            age = fr.trigger_delay_s if age_s is None else age_s
+            if not (isinstance(age, (int, float)) and math.isfinite(age) and age >= 0.0):
+                raise ParameterError(f"TRIGGER {self.name}: the edge's age (={age!r}) must "
+                                     "be >= 0 s")
+            vals = list(fr.source_values(age))
         else:
             raise NoFrameError(f"TRIGGER {self.name}: frame {name!r} given by name only: give "
                                "the values or the MovingFrame object")
