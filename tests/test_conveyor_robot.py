@@ -584,3 +584,42 @@ def test_tracking_process_trigger_delay_correction_takes_the_latch_back_to_the_e
         robot.trigger(plain, age_s=-0.001)
     with pytest.raises(ParameterError, match="trigger delay"):
         MovingFrame("bad", [SimulatedAxis(accelerating)], trigger_delay_s=math.nan)
+
+
+def test_phase2_frame_max_values_reduce_the_superimposed_motion():
+    """Overview page, Moving Frame parameters: "Increasing these values will effectively
+    decrease the velocity of the superimposed robot motion while it is synchronized" (PHASE2):
+    with the robot's maxima given, a motion started while synced gets robot max - frame max;
+    the combined (frame + motion) speed stays within the robot's maximum; without robot
+    maxima, or when not synced, the motion's own limits apply; nothing left is an error."""
+    robot_max = Limits(800.0, 20000.0, 400000.0)
+    own = MotionLimits(vel=700.0, acc=15000.0, jerk=300000.0)
+
+    def peak_motion_speed(frame_vmax, *, synced=True, tracker=None):
+        f = belt(window=(0.0, 5000.0), limits=FrameLimits(VelocityMaxTrans=frame_vmax))
+        cell, robot = make([f], tracker=tracker or params(robot_max_trans=robot_max),
+                           motion_limits=own)
+        if synced:
+            robot.master_frame = f
+            run(cell, 5)
+            robot.trigger(f)
+            sync(cell, robot)
+        m = robot.moves_rel(Location.at(0.0, 300.0, 0.0), name="pick")   # across the belt
+        outs = run(cell, 3000, until=lambda o: m.done)
+        vy = np.abs(np.diff(positions(outs)[:, 1])) / T
+        return m, float(vy.max()), outs, robot
+
+    m, v, _, _ = peak_motion_speed(300.0)
+    assert m.limits.vel == pytest.approx(800.0 - 300.0) and v == pytest.approx(500.0, rel=1e-3)
+    assert m.limits.acc == 15000.0                    # own limit lower than 20000 - 1000
+    m, v, _, _ = peak_motion_speed(600.0)             # a faster frame: a slower motion
+    assert m.limits.vel == pytest.approx(200.0) and v == pytest.approx(200.0, rel=1e-3)
+    assert SPEED + v <= robot_max.vel                 # combined speed within the robot's max
+    m, v, _, _ = peak_motion_speed(300.0, synced=False)   # not synchronised: own limits
+    assert m.limits is None and v == pytest.approx(700.0, rel=1e-3)
+    m, v, _, _ = peak_motion_speed(300.0, tracker=params())   # no robot maxima: own limits
+    assert m.limits is None and v == pytest.approx(700.0, rel=1e-3)
+    m, v, outs, robot = peak_motion_speed(800.0)      # nothing left for the motion
+    errors = [e for o in outs for e in o.events if e.kind == "command_error"]
+    assert errors and "leaves nothing of the robot's maximum (800)" in errors[0].message
+    assert not m.done and m not in robot.virtual.queue and not robot.virtual.busy

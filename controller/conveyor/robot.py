@@ -706,6 +706,40 @@ class RobotGroup:
 
         return predict_catch(self, frame, item, horizon_s)
 
+    def _limit_superimposed(self, m: Motion) -> None:
+        """PHASE2 (overview page, Moving Frame parameters): a motion that starts while frames
+        move the robot (links syncing, synced or de-syncing) gets the robot's maxima minus
+        those frames' ``{Velocity|Acceleration|Jerk}Max{Trans|Rot}``, so that "increasing
+        these values will effectively decrease the velocity of the superimposed robot
+        motion" and the combined motion stays within the robot's limits.  Only with the
+        robot's maxima given (``TrackerParams.robot_max_trans/_rot``); the motion's own
+        limits still apply when lower.  Raises ParameterError when nothing is left."""
+        rt, rr = self.tracker_params.robot_max_trans, self.tracker_params.robot_max_rot
+        moving = [link.frame.limits for link in self.links
+                  if link.state in (LinkState.SYNCING, LinkState.SYNCED, LinkState.DESYNCING)]
+        if not moving or (rt is None and rr is None):
+            return
+        lim = m.limits or self.virtual.limits
+        caps = {}
+        for name, robot, frame_key in (
+                ("vel", rt and rt.vel, "VelocityMaxTrans"),
+                ("acc", rt and rt.acc, "AccelerationMaxTrans"),
+                ("jerk", rt and rt.jerk, "JerkMaxTrans"),
+                ("rot_vel", rr and rr.vel, "VelocityMaxRot"),
+                ("rot_acc", rr and rr.acc, "AccelerationMaxRot"),
+                ("rot_jerk", rr and rr.jerk, "JerkMaxRot")):
+            if robot is None:
+                continue
+            left = robot - sum(getattr(f, frame_key) for f in moving)
+            if left <= 0.0:
+                raise ParameterError(
+                    f"{self.name}: motion {m.name or m.id} cannot start: the moving frames' "
+                    f"{frame_key} ({sum(getattr(f, frame_key) for f in moving):g}) leaves "
+                    f"nothing of the robot's maximum ({robot:g}) for a superimposed motion")
+            caps[name] = min(getattr(lim, name), left)
+        m.limits = MotionLimits(**{**{n: getattr(lim, n) for n in (
+            "vel", "acc", "jerk", "rot_vel", "rot_acc", "rot_jerk")}, **caps})
+
     # -- cyclic -----------------------------------------------------------------------------
     def update(self) -> RobotOutput:
         """Compute the next sample (call after the frames' ``update`` of that sample)."""
@@ -729,6 +763,12 @@ class RobotGroup:
         # motions start after the links: a de-sync that starts in this sample has moved its
         # stopping position into V already, so a motion started now ends on its target (7)
         for m in due:
+            try:
+                self._limit_superimposed(m)
+            except ParameterError as exc:
+                v.queue.remove(m)
+                ev.append(Event(k, "command_error", message=str(exc)))
+                continue
             v.start(m)
             ev.append(Event(k, "motion_started", message=m.name or f"motion {m.id}"))
         v.step()
