@@ -38,6 +38,11 @@ def test_configured_bus_matches(stepped_controller, cfg):
     for n in r.nodes:
         assert n.answered and n.nmt_state == 5
         assert n.identity["vendor-ID"] == 0x00CA7AC0
+    # the manufacturer's strings (1008h-100Ah, segmented uploads)
+    assert r.node(11).names == {"device name": "cantrack servo", "hardware version": "sim",
+                                "software version": "0.1.0"}
+    assert r.node(10).names["device name"] == "cantrack encoder"
+    assert "device name 'cantrack servo'" in r.format()
     assert r.format().endswith("all nodes match the configuration")
 
 

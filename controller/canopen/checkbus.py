@@ -57,6 +57,9 @@ class NodeCheck:
     answered: bool = False
     nmt_state: int | None = None   # from its heartbeat
     identity: dict[str, int] = field(default_factory=dict)
+    #: 1008h/1009h/100Ah (device name, hardware and software version) where the node has them
+    #: (strings: segmented SDO uploads); informative, never a difference
+    names: dict[str, str] = field(default_factory=dict)
     differences: list[Difference] = field(default_factory=list)
 
     @property
@@ -94,6 +97,8 @@ class BusCheck:
                 continue
             ident = " ".join(f"{k} {v:08X}h" for k, v in n.identity.items())
             head = f"{n.label}: {'OK' if n.ok else 'DIFFERS'}, NMT {n.state_text()}, {ident}"
+            if n.names:
+                head += ", " + ", ".join(f"{k} {v!r}" for k, v in n.names.items())
             lines.append(head)
             for d in n.differences:
                 lines.append(f"    {d}")
@@ -105,6 +110,24 @@ class BusCheck:
 
 def _hex(v: int | None) -> str:
     return "-" if v is None else f"{v:08X}h"
+
+
+#: the manufacturer's strings of CiA 301 read when present
+NAME_OBJECTS = ((0x1008, "device name"), (0x1009, "hardware version"),
+                (0x100A, "software version"))
+
+
+def read_names(sdo: SdoClient) -> dict[str, str]:
+    """1008h/1009h/100Ah of a node (VISIBLE_STRING, usually longer than 4 bytes: segmented
+    uploads); an object the node does not have (abort) is left out."""
+    out = {}
+    for index, what in NAME_OBJECTS:
+        try:
+            raw = sdo.upload(index, 0)
+        except SdoAbortError:
+            continue
+        out[what] = raw.rstrip(b"\0").decode("utf-8", errors="replace")
+    return out
 
 
 def expected_identity(cfg: BusConfig, name: str) -> list[tuple[int, int, str, int | None, str]]:
@@ -243,6 +266,7 @@ def check_bus(cfg: BusConfig, transport: Transport, *, scan: range | None = None
             if want is not None and got != want:
                 nc.differences.append(Difference("identity", f"{index:04X}h:{sub:02X}",
                                                  f"{what} {_hex(want)}", _hex(got), source))
+        nc.names = read_names(sdo)
         if nc.nmt_state is None and (cfg.slaves[name].heartbeat_producer_ms or 0) > 0:
             nc.differences.append(Difference("nmt", "1017h", "a heartbeat every "
                                              f"{cfg.slaves[name].heartbeat_producer_ms} ms",

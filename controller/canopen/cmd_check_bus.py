@@ -53,7 +53,7 @@ def main(argv: list[str] | None = None, prog: str = "cantrack check-bus") -> int
         with open(args.json, "w", encoding="utf-8") as f:
             json.dump({"ok": result.ok, "nodes": [
                 {"node_id": n.node_id, "name": n.name, "answered": n.answered,
-                 "nmt_state": n.nmt_state, "identity": n.identity,
+                 "nmt_state": n.nmt_state, "identity": n.identity, "names": n.names,
                  "differences": [vars(d) for d in n.differences]} for n in result.nodes]},
                 f, indent=1)
     return 0 if result.ok else 1
