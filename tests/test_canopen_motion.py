@@ -610,13 +610,29 @@ PROBE_SIM = SWITCHES + ", probe_input: home"  # the home switch also wired to th
 SWITCH_EDGE = 2000  # counts: the home switch [-2000, 2000] becomes active here (homing -1)
 
 
+#: the probe's status and value in an event-driven TPDO (sent on change, inhibit 1 ms)
+PROBE_TPDO = """    3:
+      enabled: true
+      transmission: 255
+      inhibit_time: 10
+      mapping:
+        - {index: 0x60B9, sub_index: 0}
+        - {index: 0x60BA, sub_index: 0}
+"""
+
+
 def _home_y(tmp_path, *, touch_probe: bool, initial: int = 300000, offset: float = 0.0,
-            sim: str = PROBE_SIM, record: bool = False):
+            sim: str = PROBE_SIM, record: bool = False, probe_tpdo: bool = False):
     """Home y in a session of its own: (report, drive, recorded frames)."""
     from controller.canopen.world import SimWorld
     homing = GOTOY.replace("}", f", home_offset: {offset}, "
                                 f"touch_probe: {'true' if touch_probe else 'false'}}}")
-    cfg = cfg_of(tmp_path, initial=initial, homing=homing, sim=sim)
+    text = yml_text(initial=initial, homing=homing, sim=sim)
+    if probe_tpdo:
+        text = text.replace(TPDO2, TPDO2 + PROBE_TPDO)
+    p = tmp_path / "bus.yml"
+    p.write_text(text)
+    cfg = load_bus_config(p)
     with SimWorld(cfg, record=record) as world:
         ctl = am.MotionController(cfg, world.transport, [am.GotoYJob(am._axis(cfg, "y"),
                                                                      cfg.period_s)])
@@ -754,3 +770,18 @@ def test_max_time_while_arming_the_touch_probe(tmp_path):
     assert r.result == "ERROR_TIMEOUT" and r.message.endswith(": not started")
     assert r.states == ["ARM_PROBE"]
     assert r.end_counts == 300000 and not _reactions(ctl)
+
+
+def test_gotoy_touch_probe_from_its_tpdo_needs_no_sdo_during_the_motion(tmp_path):
+    """60B9h + 60BAh mapped in an event-driven TPDO: the latch comes with the edge; the only
+    SDOs are the arming ones before the search (no round trips between SYNCs while moving)."""
+    r, dev, frames = _home_y(tmp_path, touch_probe=True, record=True, probe_tpdo=True)
+    assert r.result == "FINISHED", r.message
+    assert r.probe_source == "TPDO" and r.probe_latched_counts == SWITCH_EDGE
+    assert abs(_switch_error_counts(dev, 0.0)) <= 1
+    probe_sdos = [struct.unpack_from("<H", d, 1)[0] for _, cid, d in frames
+                  if cid == 0x600 + 12 and d[0] != 0x80
+                  and struct.unpack_from("<H", d, 1)[0] in (0x60B8, 0x60B9, 0x60BA)]
+    assert probe_sdos == [0x60B8, 0x60B8, 0x60B9]          # arming only
+    r_sdo, _, _ = _home_y(tmp_path, touch_probe=True)      # not mapped: read by SDO
+    assert r_sdo.probe_source == "SDO" and r_sdo.probe_latched_counts == SWITCH_EDGE

@@ -28,8 +28,11 @@ one session -- one boot, one enable -- and :func:`home` homes several axes that 
   which the switch was read (one sample or more late at the creep speed): before the search
   (one cycle holding, state ARM_PROBE) 60B8h = 0 then 0011h (probe 1 enabled, first event,
   positive edge, source = the probe input) by SDO, checked by 60B9h (bit 0 set, bit 1
-  clear); once GotoY has seen the home sensor (DOGE), 60B9h and 60BAh are read by SDO
-  (between two cycles, while the push-in runs) and 60BAh (6064h latched at the edge, counts)
+  clear); once GotoY has seen the home sensor (DOGE), 60B9h and 60BAh are taken from their
+  TPDO when the drive maps both in one (event-driven: it is sent at the edge; waited for up
+  to ``PROBE_PDO_WAIT_CYCLES``), else read by SDO (between two cycles, while the push-in
+  runs: two round trips that must fit between SYNCs on a real bus), and 60BAh (6064h
+  latched at the edge, counts)
   replaces the latch (:meth:`GotoY.refine_latch <controller.motion.GotoY.refine_latch>`).
   No positive edge stored (60B9h bit 1 clear) -- the switch is not wired to the probe
   input, or the probe is broken -- fails the homing (``ERROR_SENSOR``, the message names
@@ -146,6 +149,8 @@ class MotionReport:
     #: GotoY with touch_probe: 60BAh [counts] and in mm; None if not read / not stored
     probe_latched_counts: int | None = None
     probe_latched_mm: float | None = None
+    #: how 60B9h/60BAh were read: "TPDO" (mapped, event-driven) or "SDO"; None if not read
+    probe_source: str | None = None
     #: GotoY with touch_probe: 60BAh - the sensor latch in counts (None unless both)
     latch_difference_counts: int | None = None
     #: GotoY with touch_probe: why the sensor latch was kept (e.g. started on the switch)
@@ -473,8 +478,30 @@ class GotoYJob(_SetpointJob):
         #: arm (touch probe, holding) | gotoy | settle | setup | low | run | back | csp
         self.phase = "arm" if self.touch_probe else "gotoy"
         self._probe_read = False
+        #: (60B9h, 60BAh) from a TPDO that maps both (None: not mapped, or nothing yet)
+        self._probe_pdo: tuple[int, int] | None = None
+        self._probe_pdo_mapped = False
+        self._probe_waits = 0
 
     needs_inputs = True
+
+    #: cycles to wait for the probe's event TPDO after the home sensor was seen, before the
+    #: SDO read (the TPDO is sent at the edge, before the SYNC TPDO with 60FDh bit 2)
+    PROBE_PDO_WAIT_CYCLES = 5
+
+    def _attach_probe_pdo(self, ctl: MotionController, io: AxisIO) -> None:
+        """Subscribe to the TPDO that maps 60B9h and 60BAh, if the drive has one."""
+        tp = effective_pdos(ctl.cfg)[io.node].find("tpdo", [(0x60B9, 0), (0x60BA, 0)])
+        if tp is None:
+            return  # read by SDO once the sensor is seen
+        codec = PdoCodec(tp, ctl.cfg.ods[io.node])
+        pos = (codec.position(0x60B9), codec.position(0x60BA))
+        self._probe_pdo_mapped = True
+
+        def on_probe(can_id: int, data: bytes, t_ns: int) -> None:
+            values = codec.unpack(data)
+            self._probe_pdo = (int(values[pos[0]]), int(values[pos[1]]))
+        ctl.transport.subscribe(tp.cob_id, on_probe)
 
     #: 60B8h: probe 1 enabled (bit 0), first event (bit 1 = 0), trigger = the probe-1
     #: input (bits 2-3 = 00), latch on the positive edge (bit 4)
@@ -514,6 +541,7 @@ class GotoYJob(_SetpointJob):
                 f"axis {self.ax.name}: touch probe 1 not armed: 60B9h = {status:04X}h after "
                 f"60B8h = {self.PROBE_FUNCTION:04X}h (bit 0 'enabled' expected, bit 1 "
                 f"'stored' clear)")
+        self._probe_pdo = None  # only what the probe's TPDO says after this arming counts
 
     def _read_probe(self, ctl: MotionController) -> None:
         """Home has been seen (DOGE): the drive's latch replaces the sensor's."""
@@ -525,12 +553,23 @@ class GotoYJob(_SetpointJob):
             # probe was armed, no edge can come; the (less precise) start position is home
             r.latch_note = "touch probe not used: the home switch was active at the start"
             return
-        try:
-            status = self.sdo.upload_uint(0x60B9, 0)
-            counts = self.sdo.upload_int(0x60BA, 0) if status & self.PROBE_STORED else None
-        except CanError as exc:
-            self._probe_failed(f"touch probe 1 could not be read: {exc}")
+        pdo = self._probe_pdo
+        if pdo is not None and pdo[0] & self.PROBE_STORED:
+            # the probe's TPDO (60B9h, 60BAh) came with the edge: no SDO during the motion
+            status, counts = pdo
+            r.probe_source = "TPDO"
+        elif self._probe_pdo_mapped and self._probe_waits < self.PROBE_PDO_WAIT_CYCLES:
+            self._probe_waits += 1
+            self._probe_read = False  # again after the next cycle
             return
+        else:
+            try:
+                status = self.sdo.upload_uint(0x60B9, 0)
+                counts = self.sdo.upload_int(0x60BA, 0) if status & self.PROBE_STORED else None
+            except CanError as exc:
+                self._probe_failed(f"touch probe 1 could not be read: {exc}")
+                return
+            r.probe_source = "SDO"
         if counts is None:
             self._probe_failed(
                 f"touch probe 1 stored no positive edge (60B9h = {status:04X}h, bit 1 clear) "
@@ -568,6 +607,8 @@ class GotoYJob(_SetpointJob):
         super().attach(ctl, io)
         t = ctl.tc.timeouts
         self.sdo = SdoClient(ctl.transport, io.node_id, io.label, t.sdo_s, t.sdo_retries)
+        if self.touch_probe:
+            self._attach_probe_pdo(ctl, io)
 
     def finish(self, ctl: MotionController, k: int, ok: bool, result: str,
                message: str = "") -> None:
@@ -726,6 +767,8 @@ class DriveHomingJob(Job):
         super().attach(ctl, io)
         t = ctl.tc.timeouts
         self.sdo = SdoClient(ctl.transport, io.node_id, io.label, t.sdo_s, t.sdo_retries)
+        if self.touch_probe:
+            self._attach_probe_pdo(ctl, io)
 
     def masks_bit13(self) -> bool:
         return self.phase in ("low", "run", "back")
