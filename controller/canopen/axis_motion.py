@@ -767,8 +767,6 @@ class DriveHomingJob(Job):
         super().attach(ctl, io)
         t = ctl.tc.timeouts
         self.sdo = SdoClient(ctl.transport, io.node_id, io.label, t.sdo_s, t.sdo_retries)
-        if self.touch_probe:
-            self._attach_probe_pdo(ctl, io)
 
     def masks_bit13(self) -> bool:
         return self.phase in ("low", "run", "back")
