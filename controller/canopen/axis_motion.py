@@ -83,6 +83,7 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import CanError, ConfigError
+from ..kinematics.counts import axis_unit
 from ..motion import (
     AxisConfig as MotionAxisConfig,
 )
@@ -174,7 +175,7 @@ class MotionReport:
         return None if self.home_offset_mm is None else self.end_mm - self.home_offset_mm
 
     def summary(self) -> str:
-        unit = "deg" if self.axis == "c" else "mm"
+        unit = axis_unit(self.axis)
         if self.result == "SKIPPED":
             return f"{self.kind} {self.axis}: SKIPPED: {self.message}"
         lines = [f"{self.kind} {self.axis}: {'OK' if self.ok else 'FAILED'} ({self.result})"
@@ -340,7 +341,7 @@ class _SetpointJob(Job):
         if out.result is not MotionResult.WORKING and out.state.name in ("STOP", "READY"):
             first = self._error or out
             if self._abort is not None:
-                unit = "deg" if self.ax.name == "c" else "mm"
+                unit = self.ax.scale.unit
                 result, message = self._abort
                 self.finish(ctl, k, False, result,
                             f"{message}: stopped (jerk-limited) at {out.position_mm:.4f} {unit}")
@@ -547,7 +548,7 @@ class GotoYJob(_SetpointJob):
         """Home has been seen (DOGE): the drive's latch replaces the sensor's."""
         self._probe_read = True
         obj, r, sc = self.obj, self.report, self.ax.scale
-        unit = "deg" if self.ax.name == "c" else "mm"
+        unit = self.ax.scale.unit
         if "SMALL_V" not in r.states:
             # on the home switch at the start (DOGE at once): the input was active when the
             # probe was armed, no edge can come; the (less precise) start position is home
@@ -850,7 +851,7 @@ class DriveHomingJob(Job):
             self.finish(ctl, k, True, MotionResult.FINISHED.name,
                         f"drive homing method {self.h.drive_method} attained")
         elif self._error is self._stop_req:
-            unit = "deg" if self.ax.name == "c" else "mm"
+            unit = self.ax.scale.unit
             result, message = self._error
             self.finish(ctl, k, False, result,
                         f"{message}: the drive's homing interrupted (controlword bit 4 low), "

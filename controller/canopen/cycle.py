@@ -380,7 +380,7 @@ class Controller:
             decel = a.quick_stop_decel
             stop = p + v * abs(v) / (2.0 * decel) if decel > 0 else p
             if not (sc.min <= p <= sc.max and sc.min <= stop <= sc.max):
-                unit = "deg" if a.axis == "c" else "mm"
+                unit = sc.unit
                 return a, (f"setpoint {a.axis} = {p:.3f} {unit} at {v:.1f} {unit}/s (a quick "
                            f"stop at {decel:.0f} {unit}/s^2 ends at {stop:.3f}) outside "
                            f"[{sc.min:g}, {sc.max:g}]")

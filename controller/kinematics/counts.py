@@ -29,6 +29,11 @@ from ..tracking import unwrap_counts
 INT32_MIN, INT32_MAX = -0x80000000, 0x7FFFFFFF
 
 
+def axis_unit(name: str) -> str:
+    """The unit of an axis' positions: ``deg`` for the tool angle ``c``, else ``mm``."""
+    return "deg" if name == "c" else "mm"
+
+
 @dataclass(frozen=True, slots=True)
 class AxisScale:
     """One drive axis: ``counts_per_unit`` [counts/mm or counts/deg], ``zero`` [mm|deg],
@@ -40,6 +45,11 @@ class AxisScale:
     sign: int = 1
     min: float = -math.inf
     max: float = math.inf
+
+    @property
+    def unit(self) -> str:
+        """``mm`` or ``deg`` (:func:`axis_unit`)."""
+        return axis_unit(self.name)
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.counts_per_unit) and self.counts_per_unit > 0):
