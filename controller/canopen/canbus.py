@@ -11,11 +11,9 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import logging
 import os
 import signal
-from pathlib import Path
 from typing import Any
 
 import can
@@ -23,6 +21,7 @@ import can.cli
 
 from ..errors import CanError
 from .config import BAUDRATES_KBIT
+from .report import write_json_atomic
 
 log = logging.getLogger(__name__)
 
@@ -106,8 +105,7 @@ def set_sigterm(handler):
 def write_ready_file(path: str, info: dict[str, Any]) -> None:
     """Atomically write a readiness file (JSON; ``pid`` added) for scripts that wait on it.
 
-    Written to a temporary name and renamed, so a waiting script never reads half a file.
+    Written to a temporary name and renamed (:func:`report.write_json_atomic`), so a waiting
+    script never reads half a file.
     """
-    tmp = Path(f"{path}.tmp{os.getpid()}")
-    tmp.write_text(json.dumps({"pid": os.getpid(), **info}))
-    os.replace(tmp, path)
+    write_json_atomic(path, {"pid": os.getpid(), **info}, indent=None)

@@ -26,12 +26,9 @@ controller sent after each SYNC, timing and the exit code.
 from __future__ import annotations
 
 import argparse
-import json
-import os
 import sys
 import time
 from collections.abc import Callable
-from pathlib import Path
 
 from ..errors import CanError
 from ..tracking import Mode
@@ -40,7 +37,7 @@ from .app import ConveyorFollow
 from .busload import check_bus_load
 from .config import load_bus_config
 from .cycle import Controller, Phase
-from .report import json_safe, status_line, summary_table, timing_summary, write_telemetry
+from .report import status_line, summary_table, timing_summary, write_json_atomic, write_telemetry
 from .transport import RealtimeTransport
 
 
@@ -169,12 +166,6 @@ def run_report(ctl: Controller, changes: list[dict], pdo_cycles: list[list[int]]
     }
 
 
-def _write_json(path: str, data: dict) -> None:
-    tmp = Path(f"{path}.tmp{os.getpid()}")
-    tmp.write_text(json.dumps(json_safe(data), indent=1, default=str, allow_nan=False))
-    os.replace(tmp, path)
-
-
 def _pdo_cobs(cfg) -> dict:
     from .pdo import effective_pdos
     out = {}
@@ -255,7 +246,7 @@ def main(argv: list[str] | None = None, prog: str = "cantrack run") -> int:
         except CanError as exc:
             end, error = "error", str(exc)
             if args.report:
-                _write_json(args.report, run_report(ctl, changes, transport.cycles, 2, end,
+                write_json_atomic(args.report, run_report(ctl, changes, transport.cycles, 2, end,
                                                     time.perf_counter() - wall0, error))
             raise
     finally:
@@ -268,7 +259,7 @@ def main(argv: list[str] | None = None, prog: str = "cantrack run") -> int:
     if args.telemetry:
         write_telemetry(args.telemetry, ctl)
     if args.report:
-        _write_json(args.report, run_report(ctl, changes, transport.cycles, code, end,
+        write_json_atomic(args.report, run_report(ctl, changes, transport.cycles, code, end,
                                             time.perf_counter() - wall0, error))
     print(summary_table(ctl, [], time.perf_counter() - wall0))
     if ctl.k:

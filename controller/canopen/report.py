@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 from collections.abc import Sequence
 from dataclasses import asdict
 from pathlib import Path
@@ -44,6 +45,14 @@ def json_safe(obj):
     if isinstance(obj, (list, tuple)):
         return [json_safe(v) for v in obj]
     return obj
+
+
+def write_json_atomic(path: str | Path, data, indent: int | None = 1) -> None:
+    """Write ``data`` as strict JSON (:func:`json_safe`) to a temporary name, then rename:
+    a script waiting for the file never reads half of it."""
+    tmp = Path(f"{path}.tmp{os.getpid()}")
+    tmp.write_text(json.dumps(json_safe(data), indent=indent, default=str, allow_nan=False))
+    os.replace(tmp, path)
 
 
 def jitter_ns(ctl: Controller) -> list[int]:
