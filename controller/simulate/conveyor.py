@@ -81,6 +81,7 @@ from ..conveyor.sources import quantise_counts
 from ..conveyor.telemetry import ItemRecord
 from ..errors import ConfigError, ParameterError
 from ..tracking import Imfs, Mode, TrackerParams
+from .scenario import SampledRun
 
 __all__ = ["ConveyorScenario", "ConveyorResult", "PickProgram", "parse_conveyor",
            "run_conveyor", "write_conveyor_trace", "write_logs"]
@@ -154,7 +155,7 @@ class ProgramSpec:
 
 
 @dataclass(frozen=True)
-class ConveyorScenario:
+class ConveyorScenario(SampledRun):
     params: TrackerParams
     duration_s: float
     frame: FrameSpec
@@ -164,14 +165,6 @@ class ConveyorScenario:
     program: ProgramSpec
     name: str = ""
     source: Path | None = None
-
-    @property
-    def sample_time_s(self) -> float:
-        return self.params.sample_time_s
-
-    @property
-    def n_samples(self) -> int:
-        return max(1, round(self.duration_s / self.params.sample_time_s))
 
 
 # -- parsing (uses the tracking scenarios' validation helpers) ----------------------------

@@ -343,8 +343,22 @@ class EncoderSpec:
     degree: int = 2
 
 
+class SampledRun:
+    """Sample time and length of a scenario with ``params`` (TrackerParams) and
+    ``duration_s`` (shared by the tracking and the conveyor scenarios)."""
+
+    @property
+    def sample_time_s(self) -> float:
+        return self.params.sample_time_s
+
+    @property
+    def n_samples(self) -> int:
+        """Number of updates N (the trace has N + 1 rows)."""
+        return max(1, round(self.duration_s / self.params.sample_time_s))
+
+
 @dataclass(frozen=True)
-class Scenario:
+class Scenario(SampledRun):
     """A validated scenario.  ``engage``/``disengage`` are times [s]; ``*_samples`` the
     sample indices k at which the commands are given (they act on sample k + 1)."""
 
@@ -357,15 +371,6 @@ class Scenario:
     estimator: EncoderSpec | None = None
     name: str = ""
     source: Path | None = None
-
-    @property
-    def sample_time_s(self) -> float:
-        return self.params.sample_time_s
-
-    @property
-    def n_samples(self) -> int:
-        """Number of updates N (the trace has N + 1 rows)."""
-        return max(1, round(self.duration_s / self.params.sample_time_s))
 
     @property
     def engage_samples(self) -> tuple[int, ...]:
