@@ -26,18 +26,20 @@ def stepped_controller():
         w.close()
 
 
-@pytest.fixture(scope="session")
-def conveyor_example_run():
-    """``conveyor_example_run(name)`` -> the ConveyorResult of ``examples/<name>`` (each example
-    simulated once per session, shared by the conveyor tests)."""
+def _conveyor_example(name: str):
     from pathlib import Path
 
     from controller.simulate import run_scenario
-    examples = Path(__file__).resolve().parents[1] / "examples"
-    cache: dict = {}
+    return run_scenario(Path(__file__).resolve().parents[1] / "examples" / name)
 
-    def _run(name: str):
-        if name not in cache:
-            cache[name] = run_scenario(examples / name)
-        return cache[name]
-    return _run
+
+@pytest.fixture(scope="session")
+def linear():
+    """The ConveyorResult of examples/conveyor_linear.yaml (simulated once per session)."""
+    return _conveyor_example("conveyor_linear.yaml")
+
+
+@pytest.fixture(scope="session")
+def rotary():
+    """The ConveyorResult of examples/conveyor_rotary.yaml (simulated once per session)."""
+    return _conveyor_example("conveyor_rotary.yaml")

@@ -15,20 +15,12 @@ from controller import cli
 from controller.conveyor import ITEM_MISSED_CODE
 from controller.errors import ConfigError
 from controller.simulate import format_summary, load_scenario, run_scenario, write_trace
-from controller.simulate.conveyor import (CONVEYOR_TRACE_COLUMNS, ConveyorResult,
-                                          ConveyorScenario, write_logs)
+from controller.simulate.conveyor import (CONVEYOR_TRACE_COLUMNS, ConveyorScenario, write_logs)
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 
 
-@pytest.fixture
-def linear(conveyor_example_run) -> ConveyorResult:
-    return conveyor_example_run("conveyor_linear.yaml")
-
-
-@pytest.fixture
-def rotary(conveyor_example_run) -> ConveyorResult:
-    return conveyor_example_run("conveyor_rotary.yaml")
+# (the examples' results: the session fixtures `linear` and `rotary` of conftest.py)
 
 
 def small(**changes) -> dict:

@@ -35,14 +35,7 @@ def _linear_doc() -> dict:
     return yaml.safe_load((EXAMPLES / "conveyor_linear.yaml").read_text())
 
 
-@pytest.fixture
-def linear(conveyor_example_run) -> ConveyorResult:
-    return conveyor_example_run("conveyor_linear.yaml")
-
-
-@pytest.fixture
-def rotary(conveyor_example_run) -> ConveyorResult:
-    return conveyor_example_run("conveyor_rotary.yaml")
+# (the examples' results: the session fixtures `linear` and `rotary` of conftest.py)
 
 
 @pytest.fixture(scope="module")
