@@ -142,9 +142,11 @@ def bench_core(n: int, planner: int) -> float:
 
 
 def bench_fmpy_loop(fmu: Path, n: int, planner: int) -> float:
+    """The set/step/get loop of an importer on ``CanTracker.fmu`` (FMU2Slave) or
+    ``CanTracker3.fmu`` (FMU3Slave): FmuTracker picks the slave by the FMU's version."""
     with FmuTracker(fmu, "bench", start_values={"planner": planner}, logging_on=False) as f:
         s = f.slave
-        return _time_steps(n, s.setReal, s.setBoolean, s.doStep, s.getReal, s.getInteger,
+        return _time_steps(n, f._set_real, s.setBoolean, s.doStep, f._get_real, f._get_int,
                            f._in_vrs, f._engage_vr, f._out_vrs, f._int_vrs)
 
 
@@ -169,27 +171,6 @@ def bench_simulate_fmu(fmu: Path, n: int, planner: int, table: bool) -> float:
     elapsed = time.perf_counter() - t0
     assert len(result) == n + 1, len(result)
     return n / elapsed
-
-
-def bench_fmu3(fmu3: Path, n: int, planner: int) -> float:
-    from fmpy import extract, read_model_description
-    from fmpy.fmi3 import FMU3Slave
-
-    md = read_model_description(str(fmu3))
-    vr = {v.name: v.valueReference for v in md.modelVariables}
-    s = FMU3Slave(guid=md.guid, unzipDirectory=extract(str(fmu3)),
-                  modelIdentifier=md.coSimulation.modelIdentifier, instanceName="bench3")
-    s.instantiate(logMessage=lambda *a: None)
-    s.enterInitializationMode(startTime=0.0)
-    s.setInt32([vr["planner"]], [planner])
-    s.exitInitializationMode()
-    ivr, ovr = [vr[c] for c in MASTER_INPUTS], [vr[c] for c in OUTPUT_REALS]
-    ivr_int, evr = [vr[c] for c in OUTPUT_INTS], [vr["engage"]]
-    rate = _time_steps(n, s.setFloat64, s.setBoolean, s.doStep, s.getFloat64, s.getInt32,
-                       ivr, evr, ovr, ivr_int)
-    s.terminate()
-    s.freeInstance()
-    return rate
 
 
 def bench_libcosim(folder: Path, n: int, planner: int) -> float:
@@ -240,7 +221,7 @@ def main(argv: list[str] | None = None) -> int:
         try:
             from controller.fmu import build_tracker_fmu3
             fmu3 = build_tracker_fmu3(tmp)
-            run("fmpy FMU3Slave loop (FMI 3.0)", bench_fmu3, fmu3, n, args.planner)
+            run("fmpy FMU3Slave loop (FMI 3.0)", bench_fmpy_loop, fmu3, n, args.planner)
         except Exception as exc:  # noqa: BLE001 - pythonfmu3 missing
             rows.append(("fmpy FMU3Slave loop (FMI 3.0)", None, f"skipped: {exc}"))
         run("libcosimpy conveyor -> tracker (2 FMUs)", bench_libcosim, tmp, n, args.planner)
