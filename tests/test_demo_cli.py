@@ -22,6 +22,7 @@ from controller.canopen.config import load_bus_config
 from controller.canopen.cycle import Controller
 from controller.canopen.testing import bus_yml, bus_yml_text
 from controller.canopen.transport import RealtimeTransport, virtual_bus
+from controller.testing.e2e import wait_file
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -143,11 +144,9 @@ def test_controller_against_sim_devices_in_real_time(tmp_path):
     ready = tmp_path / "ready.json"
     th = threading.Thread(target=devices, daemon=True)
     th.start()
-    import time
-    t_end = time.monotonic() + 30  # the simulated devices have opened their bus and booted
-    while not ready.is_file() and not done.is_set() and time.monotonic() < t_end:
-        time.sleep(0.01)
-    assert ready.is_file() and not errors, errors
+    # the simulated devices have opened their bus and booted
+    wait_file(ready, [], 30, running=lambda: not done.is_set())
+    assert not errors, errors
     cfg = load_bus_config(yml)
     transport = RealtimeTransport(virtual_bus(channel))
     ctl = Controller(cfg, transport, ConveyorFollow(5, None, (420.0, 30.0, 0.0),

@@ -20,6 +20,7 @@ from controller.canopen.testing import bus_yml, load
 from controller.canopen.world import SimWorld
 from controller.cli import main as cli_main
 from controller.errors import CanError
+from controller.testing.e2e import wait_file
 from controller.tracking import Mode
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -138,10 +139,7 @@ def test_record_command(tmp_path, ext):
         ["-i", "virtual", "-c", chan, "-o", str(out), "--duration", "2.0", "-q",
          "--ready-file", str(ready)])))
     t.start()
-    t_end = time.monotonic() + 30
-    while not ready.is_file() and t.is_alive() and time.monotonic() < t_end:
-        time.sleep(0.01)
-    assert ready.is_file(), "record never became ready"
+    wait_file(ready, [], 30, running=t.is_alive)
     assert json.loads(ready.read_text())["output"] == str(out)
     sender = can.Bus(interface="virtual", channel=chan)
     try:
@@ -192,9 +190,7 @@ def test_record_keeps_what_arrived_before_sigterm(tmp_path):
 
     def send_then_terminate():
         try:
-            t_end = time.monotonic() + 30
-            while not ready.is_file() and time.monotonic() < t_end:
-                time.sleep(0.01)
+            wait_file(ready, [], 30)
             sender = can.Bus(interface="virtual", channel=chan)
             for i in range(n):
                 sender.send(can.Message(arbitration_id=0x181, data=i.to_bytes(2, "little"),

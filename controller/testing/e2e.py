@@ -19,7 +19,7 @@ from __future__ import annotations
 import subprocess
 import sys
 import time
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
 
 from .capture import FrameClass, Kind, pdo_order_per_sync, sync_period_stats
@@ -36,15 +36,18 @@ def cantrack_argv() -> list[str]:
     return [sys.executable, "-m", "controller.cli"]
 
 
-def wait_file(path: Path, procs: Iterable[subprocess.Popen], timeout_s: float) -> None:
-    """Wait until ``path`` exists; raise RuntimeError when one of ``procs`` exits first or
-    after ``timeout_s``."""
+def wait_file(path: Path, procs: Iterable[subprocess.Popen], timeout_s: float,
+              running: Callable[[], bool] | None = None) -> None:
+    """Wait until ``path`` exists; raise RuntimeError when one of ``procs`` exits first (or
+    ``running()``, for a writer in a thread, turns false) or after ``timeout_s``."""
     procs = list(procs)
     t_end = time.monotonic() + timeout_s
     while not path.is_file():
         for p in procs:
             if p.poll() is not None:
                 raise RuntimeError(f"{p.args} exited with {p.returncode} before {path.name}")
+        if running is not None and not running() and not path.is_file():
+            raise RuntimeError(f"the writer of {path.name} ended before writing it")
         if time.monotonic() > t_end:
             raise RuntimeError(f"no {path.name} within {timeout_s} s")
         time.sleep(0.05)
