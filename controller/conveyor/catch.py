@@ -43,7 +43,7 @@ from dataclasses import dataclass
 from ..tracking import Mode, MotionState, TrackState
 from .frame import MovingFrame
 from .frames import RotaryGeometry
-from .location import Location, q_axis_angle
+from .location import Location, q_axis_angle, q_conj, q_mul, q_to_axis_angle, q_twist_angle
 from .sources import SourceState
 from .tracker import ConveyorTracker
 from .triggers import TriggerEntry
@@ -151,6 +151,19 @@ def predict_catch(robot, frame: MovingFrame | None = None, item: TriggerEntry | 
         ref, same_item, mode = None, False, robot.default_mode
     if ref is None:
         ref = geo.zero(item.dr_mm) if mode == Mode.RELATIVE else robot.virtual.location
+    twist = 0.0
+    if mode == Mode.ABSOLUTE:
+        # slave = 3 brings the orientation on too: the angle channel's part of the offset
+        # (the swing channel, if any, is not simulated: the answer is then optimistic)
+        if same_item and link is not None:
+            twist = link.twist_deg
+        else:
+            e = q_mul(q_conj(ref.ori), geo.zero(item.dr_mm).ori)
+            if not (isinstance(geo, RotaryGeometry) and geo.rotates) and \
+                    tracker.setpoint.ang == 0.0 and off_a == 0.0:
+                axis, ang = q_to_axis_angle(e)
+                axis = axis if ang > 1e-12 else geo.local_axis
+            twist = q_twist_angle(e, axis)
     active = tracker.state in (TrackState.SYNCING, TrackState.SYNCED)
     running = same_item and active
     if running and tracker.state == TrackState.SYNCED:
@@ -175,7 +188,7 @@ def predict_catch(robot, frame: MovingFrame | None = None, item: TriggerEntry | 
 
     def target_of(p, op, oa) -> MotionState:
         pos = tuple(h - r + o for h, r, o in zip(p.here.pos, ref.pos, op))
-        return MotionState(pos, p.vel, p.acc, p.ang + oa, p.ang_vel, p.ang_acc)
+        return MotionState(pos, p.vel, p.acc, p.ang + twist + oa, p.ang_vel, p.ang_acc)
 
     # lower bound: the contribution C (setpoint minus offset) must catch the item's motion D
     t0 = 0.0 if running else max(t_enter, 0.0)

@@ -26,9 +26,14 @@ The translation of D goes through the tracker's 3-D channel; its orientation
 through the tracker's 1-D rotation channel.
 
 ``slave = 3`` (absolute; the old algorithm, Functional Change 1 keeps only 5 for the new
-one): the master is ``MF(t).pos - V(engage).pos`` for the position, so that the TCP position
-goes onto ``<MF>.here``; the orientation follows the frame's rotation as with 5 (the one-angle
-channel cannot approach an arbitrary orientation).
+one): the TCP goes onto ``<MF>.here`` in position *and* orientation ("once synchronization is
+achieved, both positions are equal"; "both robot's position and orientation coordinates are
+taken into account").  The master is ``MF(t).pos - V(engage).pos`` for the position; the
+orientation offset ``E = V(engage).ori⁻¹·MF(0).ori`` is split into a twist about the angle
+channel's axis (added to that channel's target) and a constant swing approached by a second
+one-angle tracker with the same sync rotation limits (:meth:`FrameLink._orientation_offset`;
+docs/spec/conveyor-extensions.md, "Absolute mode").  slave = 5 is unchanged: the robot turns
+with the frame, keeping its own orientation offset.
 
 **Virtual stopping position, items 6-8.**  When a contribution starts to de-sync, the core's
 stop is deterministic and its end E (the frame's "virtual stopping position") is known at
@@ -97,7 +102,8 @@ from ..tracking import Imfs, Mode, MotionState, TrackError, TrackerParams, Track
 from .errors import (ITEM_MISSED_CODE, FrameBusyError, NoFrameError, TooManyFramesError)
 from .frame import MovingFrame
 from .frames import FramePoint, RotaryGeometry
-from .location import Location, Vec3, as_location, q_axis_angle
+from .location import (Q_IDENTITY, Location, Quat, Vec3, as_location, q_axis_angle, q_conj,
+                       q_mul, q_to_axis_angle, q_twist_angle)
 from .motion import KEEP, Motion, MotionLimits, VirtualRobot
 from .telemetry import ItemRecord, ItemStatus
 from .tracker import ConveyorTracker
@@ -164,10 +170,22 @@ class FrameLink:
             mode=Mode.ABSOLUTE, master_max_trans=frame.limits.trans,
             master_max_rot=frame.limits.rot)
         self.geo = frame.geometry()
+        #: the rotation axis of the tracker's angle channel (local): the frame's own for a
+        #: rotary type 1; for frames whose orientation does not turn, chosen at the first
+        #: slave = 3 engage as the axis of the orientation offset (else z, unused)
         self.axis: Vec3 = self.geo.local_axis
+        self._axis_free = not (isinstance(self.geo, RotaryGeometry) and self.geo.rotates)
         self.tracker = ConveyorTracker(self.params, MotionState())
         self.offset_pos: Vec3 = _ZERO3
         self.offset_ang = 0.0
+        #: slave = 3: the orientation offset's part about ``axis`` [deg] (added to the angle
+        #: channel's target) and the rest, a swing about ``swing_axis`` approached by a second
+        #: one-angle tracker (None while the offset is a rotation about ``axis``)
+        self.twist_deg = 0.0
+        self.swing_axis: Vec3 | None = None
+        self.swing_deg = 0.0
+        self.swing: ConveyorTracker | None = None
+        self.offset_swing = 0.0
         self.item: TriggerEntry | None = None
         self.record: ItemRecord | None = None
         self.ref: Location | None = None
@@ -185,17 +203,39 @@ class FrameLink:
     def state(self) -> LinkState:
         if self.done:
             return LinkState.DONE
-        st = self.tracker.state
+        st = self.track_state
         if st == TrackState.OFF:
             return LinkState.WAITING
         return LinkState(int(st))
 
+    @property
+    def track_state(self) -> TrackState:
+        """The tracker's state, SYNCED only when the swing channel (slave = 3) is synced too."""
+        st = self.tracker.state
+        if st == TrackState.SYNCED and self.swing is not None and \
+                self.swing.state == TrackState.SYNCING:
+            return TrackState.SYNCING
+        return st
+
+    def _raw_ori(self, ang: float, swing: float) -> Quat:
+        q = q_axis_angle(self.axis, ang) if ang else Q_IDENTITY
+        if swing and self.swing_axis is not None:
+            q = q_mul(q_axis_angle(self.swing_axis, swing), q)
+        return q
+
     def contribution(self) -> Location:
+        """C = D̃ ⊖ O: the trackers' output minus the offset O (the output where the last
+        stop ended; positions subtract, ``O.ori⁻¹·D̃.ori``)."""
         sp = self.tracker.setpoint
         pos = (sp.pos[0] - self.offset_pos[0], sp.pos[1] - self.offset_pos[1],
                sp.pos[2] - self.offset_pos[2])
-        ang = sp.ang - self.offset_ang
-        return Location(pos, q_axis_angle(self.axis, ang) if ang else (1.0, 0.0, 0.0, 0.0))
+        sw = self.swing.setpoint.ang if self.swing is not None else 0.0
+        if self.swing is None or (sw == self.offset_swing):
+            ang = sp.ang - self.offset_ang
+            return Location(pos, q_axis_angle(self.axis, ang) if ang else Q_IDENTITY)
+        raw = self._raw_ori(sp.ang, sw)
+        off = self._raw_ori(self.offset_ang, self.offset_swing)
+        return Location(pos, q_mul(q_conj(off), raw))
 
     def contribution_velocity(self) -> Vec3:
         return self.tracker.setpoint.vel
@@ -226,11 +266,59 @@ class FrameLink:
     def _make_target(self) -> MotionState:
         p, ref, o = self.point, self.ref, self.offset_pos
         pos = tuple(h - r + q for h, r, q in zip(p.here.pos, ref.pos, o))
-        return MotionState(pos, p.vel, p.acc, p.ang + self.offset_ang, p.ang_vel, p.ang_acc)
+        return MotionState(pos, p.vel, p.acc, p.ang + self.twist_deg + self.offset_ang,
+                           p.ang_vel, p.ang_acc)
+
+    def _swing_target(self) -> float:
+        """The swing channel's target [deg] in the trackers' (raw) coordinates: the swing S
+        behind the offset O, ``Q(ψ*, s) = Q(ψ_O, s)·Q(θ_O, a)·S·Q(θ_O, a)⁻¹`` (exact when
+        θ_O = 0; else its part about s)."""
+        if not self.offset_ang:
+            return self.offset_swing + self.swing_deg
+        qa = q_axis_angle(self.axis, self.offset_ang)
+        q = q_mul(q_mul(q_axis_angle(self.swing_axis, self.offset_swing), qa),
+                  q_mul(q_axis_angle(self.swing_axis, self.swing_deg), q_conj(qa)))
+        return q_twist_angle(q, self.swing_axis)
+
+    def _orientation_offset(self) -> None:
+        """slave = 3 (absolute): the setpoint must reach ``<MF>.here`` in orientation too.
+
+        The contribution's orientation must end at ``E·Q(x, a)`` with the constant
+        ``E = V(engage).ori⁻¹·MF(0).ori`` (V ⊕ C = MF.here, MF.here.ori = MF(0).ori·Q(x, a)).
+        E is split into a twist about the angle channel's axis a (added to that channel's
+        target) and a swing S about an axis perpendicular to a: ``E = S·Q(τ, a)``, so that
+        ``C.ori = S·Q(τ + x, a)``.  The swing is a constant rotation, approached by a second
+        one-angle tracker with the same sync limits; the link is synchronised when both are.
+        On a frame whose orientation does not turn (linear, rotary decoupled) a is chosen as
+        E's own axis at the first engage, so there is no swing.
+        """
+        e = q_mul(q_conj(self.ref.ori), self.geo.zero(self.item.dr_mm).ori)
+        if self._axis_free and self.tracker.state == TrackState.OFF and \
+                self.offset_ang == 0.0 and self.tracker.setpoint.ang == 0.0:
+            axis, ang = q_to_axis_angle(e)
+            if ang > 1e-12:
+                self.axis = axis
+        self.twist_deg = q_twist_angle(e, self.axis)
+        swing = q_mul(e, q_axis_angle(self.axis, -self.twist_deg))
+        s_axis, s_ang = q_to_axis_angle(swing)
+        if s_ang <= 1e-9 and self.swing is None:
+            self.swing_deg = 0.0
+            return
+        if self.swing_axis is None:
+            self.swing_axis = s_axis
+        self.swing_deg = q_twist_angle(swing, self.swing_axis)
+        if self.swing is None:
+            self.swing = ConveyorTracker(self.params, MotionState())
 
     def _engage(self, k: int, ev: list[Event]) -> None:
         if self.ref is None:
             self.ref = self.robot.virtual.location
+            if self.mode == Mode.ABSOLUTE:
+                self._orientation_offset()
+        if self.swing is not None:
+            if self.swing.state in (TrackState.SYNCING, TrackState.SYNCED):
+                self.swing = ConveyorTracker(self.params, self.swing.setpoint)
+            self.swing.engage()
         tr = self.tracker
         if tr.state in (TrackState.SYNCING, TrackState.SYNCED):
             # a new approach from the current state (next item while tracking): the core
@@ -316,7 +404,7 @@ class FrameLink:
             if wp == WindowPosition.INSIDE and rec.entered_sample is None:
                 rec.entered_sample = k
                 ev.append(Event(k, "item_entered", self.frame.name, self.item.id))
-            st = self.tracker.state
+            st = self.track_state
             if wp == WindowPosition.AFTER:
                 if st == TrackState.SYNCED:
                     item = self.item
@@ -340,7 +428,16 @@ class FrameLink:
                 center = tuple(c - r + o for c, r, o in zip(arc.center, self.ref.pos,
                                                            self.offset_pos))
                 tr.set_arc(center, arc.axis, couple_angle=self.geo.rotates)
+        was_synced = self.track_state == TrackState.SYNCED
         out = tr.update(self.target)
+        sw = self.swing
+        if sw is not None:
+            if tr.desync_count != self._seen_desync and \
+                    sw.state in (TrackState.SYNCING, TrackState.SYNCED):
+                sw.disengage()
+            sw.update(MotionState(ang=self._swing_target()) if self.item is not None and
+                      self.ref is not None else MotionState(ang=sw.setpoint.ang))
+        synced_now = self.track_state == TrackState.SYNCED and not was_synced
         if tr.desync_count != self._seen_desync:
             self._seen_desync = tr.desync_count
             self._absorb_stop(k, ev)
@@ -348,10 +445,10 @@ class FrameLink:
         if rec is not None and tr.state in (TrackState.SYNCING, TrackState.SYNCED) and \
                 not self.leaving:
             sp, tg = out.setpoint, self.target
-            rec.observe(tr.state == TrackState.SYNCED and not out.synchronized_now,
+            rec.observe(self.track_state == TrackState.SYNCED and not synced_now,
                         tuple(a - b for a, b in zip(tg.pos, sp.pos)), tg.ang - sp.ang,
                         tuple(a - b for a, b in zip(tg.vel, sp.vel)))
-        if out.synchronized_now and rec is not None:
+        if synced_now and rec is not None:
             rec.synced_sample = k
             rec.status = ItemStatus.CAUGHT
             ev.append(Event(k, "synchronized", self.frame.name, rec.item_id))
@@ -364,11 +461,16 @@ class FrameLink:
                 self.record.error = out.error.name
                 self._close_item(k, ev, ItemStatus.LOST)
             self.leave(k, ev, f"tracker error {out.error.name}")
-        if tr.state == TrackState.OFF and tr.desync_end is not None:
+        if tr.state == TrackState.OFF and tr.desync_end is not None and \
+                (sw is None or sw.state == TrackState.OFF):
             # the stop has ended: the contribution is exactly zero; reset the bookkeeping
             tr.set_robot_state(MotionState())
             tr.desync_end = None
             self.offset_pos, self.offset_ang = _ZERO3, 0.0
+            if sw is not None:
+                sw.set_robot_state(MotionState())
+                sw.desync_end = None
+                self.offset_swing = 0.0
             if self.leaving and not self.done:
                 self._finish(k, ev)
         return err
@@ -391,8 +493,18 @@ class FrameLink:
         """A de-sync started: move its end E into the virtual robot, C = D̃ ⊖ E from now on."""
         e = self.tracker.desync_end
         dpos = tuple(a - b for a, b in zip(e.pos, self.offset_pos))
-        dang = e.ang - self.offset_ang
-        self.robot.virtual.shift(Location(dpos, q_axis_angle(self.axis, dang)))
+        sw = self.swing
+        if sw is None:
+            dang = e.ang - self.offset_ang
+            self.robot.virtual.shift(Location(dpos, q_axis_angle(self.axis, dang)))
+        else:
+            # the swing's stop ends where its de-sync (started in this sample) comes to rest
+            s_end = sw.desync_end.ang if sw.state == TrackState.DESYNCING and \
+                sw.desync_end is not None else sw.setpoint.ang
+            off = self._raw_ori(self.offset_ang, self.offset_swing)
+            end = self._raw_ori(e.ang, s_end)
+            self.robot.virtual.shift(Location(dpos, q_mul(q_conj(off), end)))
+            self.offset_swing = s_end
         self.offset_pos, self.offset_ang = e.pos, e.ang
         ev.append(Event(k, "desync_started", self.frame.name,
                         message=f"along the {self.tracker.desync_path}"))
@@ -480,7 +592,7 @@ class RobotGroup:
         if leaving:
             return Imfs.DESYNCING
         if active is not None:
-            st = active.tracker.state
+            st = active.track_state
             if st == TrackState.SYNCED:
                 return Imfs.SYNCHRONIZED
             if st == TrackState.DESYNCING:
