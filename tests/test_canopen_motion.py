@@ -83,7 +83,7 @@ def gotoy_part(r: am.MotionReport) -> am.MotionReport:
 @pytest.mark.parametrize("initial, states", [
     (300000, ["ACCEL", "CONST", "DEACCEL", "SMALL_V", "DOGE", "BACK", "STOP"]),  # no sensor
     (50000, ["SMALL_V", "DOGE", "BACK", "STOP"]),  # slow-down sensor only
-    (1000, ["DOGE", "BACK", "STOP"]),  # both sensors
+    (1000, ["BACK", "SMALL_V", "DOGE", "BACK", "STOP"]),  # both: off the switch and back
 ])
 def test_gotoy_start_conditions(tmp_path, initial, states):
     cfg = cfg_of(tmp_path, initial=initial)
@@ -97,17 +97,13 @@ def test_gotoy_start_conditions(tmp_path, initial, states):
     # the position now is the homed coordinate (home = home_offset = 0)
     assert r.home_offset_mm == 0.0
     assert r.latched_mm is not None
-    if initial != 1000:  # latched near the home switch edge (0.2 mm) at the creep speed
-        assert abs(r.latched_mm - 0.2) < 0.1
-    else:  # both sensors at the start: the start position is latched
-        assert r.latched_mm == pytest.approx(0.1)
+    # latched near the home switch edge (0.2 mm) at the creep speed, from every start (on
+    # the switch, 0.1 mm, it backs off and re-approaches: the start is not home)
+    assert abs(r.latched_mm - 0.2) < 0.1
     assert r.set_after_counts == r.end_counts == round((r.set_before_mm - r.latched_mm) * CPM)
     # BACK ends back_off (1 mm) against the homing direction from the DOGE end, which is
     # beyond the latch by the push-in (0.05 mm) plus the creep stop
-    if initial != 1000:
-        assert 1.0 - 0.2 < r.homed_end_mm < 1.0 - 500 / CPM
-    else:  # from rest: exactly push-in, then back-off
-        assert r.homed_end_mm == pytest.approx(1.0 - 500 / CPM, abs=1e-9)
+    assert 1.0 - 0.2 < r.homed_end_mm < 1.0 - 500 / CPM
     check_stream(gotoy_part(r))
     assert r.inputs and any(i & am.DI_HOME for i in r.inputs)
 
@@ -727,14 +723,21 @@ def test_gotoy_touch_probe_never_latches_is_an_error(tmp_path):
     check_stream(r)
 
 
-def test_gotoy_touch_probe_starting_on_the_switch_keeps_the_sensor_latch(tmp_path):
-    # on both sensors at the start (DOGE at once): armed on an active input, no edge can
-    # come; the start position is home, as without the probe, and the report says why
-    r, _, _ = _home_y(tmp_path, touch_probe=True, initial=1000)
+def test_gotoy_touch_probe_starting_on_the_switch_backs_off_and_latches_the_edge(tmp_path):
+    # on both sensors at the start: GotoY backs off the switch and re-approaches it, so the
+    # probe (armed on the active input) latches the re-approach's positive edge: home is the
+    # switch edge to the count, not the start position
+    r, dev, _ = _home_y(tmp_path, touch_probe=True, initial=1000)
     assert r.ok, r.message
-    assert r.states[:2] == ["ARM_PROBE", "DOGE"]
-    assert r.latch_source == "sensor" and r.latched_mm == pytest.approx(0.1)
-    assert "home switch was active at the start" in r.summary()
+    assert r.states[:5] == ["ARM_PROBE", "BACK", "SMALL_V", "DOGE", "BACK"]
+    assert r.latch_source == "touch probe"
+    assert abs(_switch_error_counts(dev, 0.0)) <= 1
+    # without the probe: the sensor latch, late by the drive's delay as from any start
+    # (it was the start position before: 1000 counts inside the switch)
+    r0, dev0, _ = _home_y(tmp_path, touch_probe=False, initial=1000)
+    assert r0.ok, r0.message
+    assert r0.states[:4] == ["BACK", "SMALL_V", "DOGE", "BACK"]
+    assert 200 < abs(_switch_error_counts(dev0, 0.0)) < 600
 
 
 def test_touch_probe_config_errors(tmp_path, monkeypatch):

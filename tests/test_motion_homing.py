@@ -131,14 +131,34 @@ def test_slow_down_only_at_start_goes_to_small_v():
     assert_within_limits(outs, LIMITS, 10.0)
 
 
-def test_both_sensors_at_start_goes_to_doge_and_latches_here():
+def test_both_sensors_at_start_backs_off_and_re_approaches_the_edge():
+    """Started 2 mm inside the home switch: BACK off it, SMALL_V back, DOGE at the edge
+    (the thesis' rule "both -> DOGE" took the start, 3.0 mm, as home: off by 2 mm)."""
     homing = GotoY(config(), position_mm=3.0)
     homing.start()
     outs = World().run(homing)
-    assert states(outs) == [S.STOP, S.BRAKE, S.DOGE, S.BACK, S.BRAKE, S.STOP]
-    assert outs[-1].home_offset_mm == 3.0
-    assert outs[-1].position_mm == pytest.approx(3.0 - 0.1 + 2.0, abs=1e-9)
+    assert states(outs) == [S.STOP, S.BRAKE, S.BACK, S.SMALL_V, S.DOGE, S.BACK, S.BRAKE,
+                            S.STOP]
+    assert outs[-1].result is MotionResult.FINISHED
+    assert 5.0 - 5.0 * T - 1e-12 <= outs[-1].home_offset_mm <= 5.0
+    # off the switch within one creep step after the edge, then back_off_mm further
+    assert 5.0 < homing.cleared_mm <= 5.0 + 5.0 * T + 1e-12
+    assert max(o.position_mm for o in outs) == pytest.approx(homing.cleared_mm + 2.0, abs=1e-9)
+    assert outs[-1].position_mm == pytest.approx(outs[-1].home_offset_mm - 0.1 + 2.0, abs=1e-9)
     assert_within_limits(outs, LIMITS, 3.0)
+
+
+@pytest.mark.parametrize("back_off_mm", [0.0, 0.001, 2.0])
+@pytest.mark.parametrize("start", [4.999, 4.0, 0.5, -20.0])
+def test_home_within_one_sample_of_the_edge_from_every_start_on_the_switch(start, back_off_mm):
+    """Any depth into the switch and any back-off (0: stop right after the edge, shorter
+    than the stopping distance): home is the edge within one creep step."""
+    homing = GotoY(config(back_off_mm=back_off_mm), position_mm=start)
+    homing.start()
+    outs = World(neg_limit_mm=-50.0).run(homing)
+    assert outs[-1].result is MotionResult.FINISHED, outs[-1].message
+    assert 5.0 - 5.0 * T - 1e-12 <= outs[-1].home_offset_mm <= 5.0
+    assert_within_limits(outs, LIMITS, start)
 
 
 def test_slow_down_during_accel_skips_const():
@@ -350,8 +370,8 @@ def test_seeded_random_homing_sweep():
         assert_within_limits(outs, LIMITS, start)
         if last.result is MotionResult.FINISHED:
             finished += 1
-            if start > dnp:  # approached the switch: latched within one creep step
-                assert dnp - creep * T - 1e-9 <= last.home_offset_mm <= dnp
+            # from every start (before, on the dog, on the switch): within one creep step
+            assert dnp - creep * T - 1e-9 <= last.home_offset_mm <= dnp
         else:
             assert last.result is MotionResult.ERROR_SENSOR and last.message
     assert finished >= 50

@@ -36,9 +36,9 @@ one session -- one boot, one enable -- and :func:`home` homes several axes that 
   replaces the latch (:meth:`GotoY.refine_latch <controller.motion.GotoY.refine_latch>`).
   No positive edge stored (60B9h bit 1 clear) -- the switch is not wired to the probe
   input, or the probe is broken -- fails the homing (``ERROR_SENSOR``, the message names
-  60B9h; GotoY stops jerk-limited): no silent fall-back to the less precise latch.  Only when
-  the axis starts on the home switch (DOGE at once: no edge can occur) the sensor latch is
-  kept, and the report says so.  The report has which latch was used (``latch_source``),
+  60B9h; GotoY stops jerk-limited): no silent fall-back to the less precise latch.  An axis
+  that starts on the home switch backs off it and re-approaches (GotoY: BACK, SMALL_V), so
+  the probe armed on the active input sees the re-approach's positive edge like any other.  The report has which latch was used (``latch_source``),
   both latches and their difference.
 * :class:`DriveHomingJob` -- the drive's own homing mode: 6098h/6099h/609Ah/607Ch by SDO,
   6060h = 6, controlword bit 4 (after one cycle with it low), then statusword bit 12 (homing
@@ -549,11 +549,6 @@ class GotoYJob(_SetpointJob):
         self._probe_read = True
         obj, r, sc = self.obj, self.report, self.ax.scale
         unit = self.ax.scale.unit
-        if "SMALL_V" not in r.states:
-            # on the home switch at the start (DOGE at once): the input was active when the
-            # probe was armed, no edge can come; the (less precise) start position is home
-            r.latch_note = "touch probe not used: the home switch was active at the start"
-            return
         pdo = self._probe_pdo
         if pdo is not None and pdo[0] & self.PROBE_STORED:
             # the probe's TPDO (60B9h, 60BAh) came with the edge: no SDO during the motion

@@ -12,7 +12,7 @@ home-position sensor DNP (``home``):
          -> BRAKE (engage) -> STOP
 
 Start rules (in BRAKE once the release time has passed): neither sensor -> ACCEL; DSS only
--> SMALL_V; both -> DOGE.  ACCEL -> DEACCEL when DSS fires, -> CONST at the search speed;
+-> SMALL_V; both -> BACK off the switch, then SMALL_V again (see below).  ACCEL -> DEACCEL when DSS fires, -> CONST at the search speed;
 CONST -> DEACCEL on DSS; DEACCEL slows to the creep speed -> SMALL_V; SMALL_V -> DOGE on
 DNP; DOGE makes m increments (``push_in_counts``) at the creep speed -> BACK.
 
@@ -20,13 +20,19 @@ Readings chosen where the thesis is silent:
 
 * BACK (only named in the thesis) moves ``back_off_mm`` against the homing direction at
   the creep speed, from rest, then the brake engages.
+* Started on the home switch (DSS and DNP active; the thesis' rule "both -> DOGE" would take
+  the start position as home, off by the depth into the switch): BACK is used first to back
+  off the switch -- against the homing direction at the creep speed until DNP goes inactive,
+  then ``back_off_mm`` further (at least the stopping distance) to rest -- and the axis
+  re-approaches at the creep speed (SMALL_V), so DOGE latches the switch edge as from every
+  other start: STOP -> BRAKE -> BACK -> SMALL_V -> DOGE -> BACK -> BRAKE -> STOP.  The
+  back-off runs under the BACK time-out; a touch probe sees the re-approach's edge.
 * Home is *latched* at the setpoint held when ``update()`` receives the first true DNP
   reading, i.e. the previous sample's setpoint, where the sensor was read; resolution one
   sample (creep*T).  The CAN shell may refine it with the drive's touch probe (60B8h):
   :meth:`GotoY.refine_latch` replaces the latched position (and so the home offset) while
   the push-in or the back-off runs (DOGE, BACK), e.g. with the drive's hardware latch of
-  6064h at the switch edge (60BAh), which has no sample delay.  When both sensors are active
-  at the start (DOGE at once) the start position is latched (no approach, less precise).
+  6064h at the switch edge (60BAh), which has no sample delay.
   At the end ``home_offset_mm`` = the latched position: afterwards the axis coordinate is
   ``position - home_offset_mm``, so the home switch is at 0.
 * DNP without DSS at the start, or DNP before the creep speed is reached (in ACCEL, CONST
@@ -244,6 +250,10 @@ class GotoY:
         self._latched_mm: float | None = None
         self._sensor_latched_mm: float | None = None
         self._home_offset_mm: float | None = None
+        #: backing off the home switch it started on (BACK before the re-approach); the
+        #: position [mm] where DNP went inactive once it has
+        self._off_switch = False
+        self._cleared_mm: float | None = None
         self._output = self._make_output()
 
     # ---- views -------------------------------------------------------------------------------
@@ -328,6 +338,14 @@ class GotoY:
         self._sensor_latched_mm = None
         self._home_offset_mm = None
         self._follower = None
+        self._off_switch = False
+        self._cleared_mm = None
+
+    @property
+    def cleared_mm(self) -> float | None:
+        """Started on the home switch: where it went inactive while backing off [mm]
+        (``None`` otherwise)."""
+        return self._cleared_mm
 
     def stop(self) -> None:
         """Abort a running homing (result ``ERROR_ABORTED``; jerk-limited stop, brake)."""
@@ -449,7 +467,9 @@ class GotoY:
                             "home sensor active without the slow-down sensor at the start "
                             f"({self._kin.position_mm:.6g} mm): check the sensors")
             elif dnp:
-                self._enter_doge()
+                # on the home switch: back off it first, then re-approach its edge
+                self._off_switch = True
+                self._velocity(cfg.creep_vel_mm_s * -1.0, HomingState.BACK)
             elif dss:
                 self._velocity(cfg.creep_vel_mm_s, HomingState.SMALL_V)
             else:
@@ -465,6 +485,19 @@ class GotoY:
                 self._velocity(cfg.creep_vel_mm_s, HomingState.DEACCEL)
         elif state is HomingState.SMALL_V and dnp:
             self._enter_doge()
+        elif state is HomingState.BACK and self._off_switch and self._cleared_mm is None \
+                and not dnp:
+            # off the switch: on to rest ``back_off_mm`` further (at least the stopping
+            # distance), so that the re-approach reaches the creep speed before the edge
+            self._cleared_mm = self._kin.position_mm
+            back = self._kin.position_mm - cfg.direction * cfg.back_off_mm
+            ahead = -cfg.direction * (back - self._kin.position_mm)
+            if ahead > 0.0 and ahead >= -cfg.direction * stopping_distance_mm(
+                    self._kin, cfg.creep_limits):
+                profile = plan_position(self._kin, back, cfg.creep_limits)
+            else:
+                profile = plan_stop(self._kin, cfg.creep_limits)
+            self._follow(profile, HomingState.BACK)
         if self._state not in _MOVING:
             return
         assert self._follower is not None
@@ -481,6 +514,9 @@ class GotoY:
                 back = self._kin.position_mm - cfg.direction * cfg.back_off_mm
                 self._follow(plan_position(self._kin, back, cfg.creep_limits),
                              HomingState.BACK)
+            elif state is HomingState.BACK and self._off_switch:
+                self._off_switch = False
+                self._velocity(cfg.creep_vel_mm_s, HomingState.SMALL_V)
             elif state in (HomingState.BACK, HomingState.ABORT):
                 self._enter_engage()
 
