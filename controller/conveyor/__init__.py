@@ -18,7 +18,8 @@ Public API::
     out = cell.step()["scara"]          # once per sample: out.setpoint, out.imfs, out.events
 
 Modules: ``location`` (⊕, ⊖, ':', quaternions), ``frames`` (linear and rotary geometry),
-``frame`` (MovingFrame, FrameLimits), ``sources``, ``window``, ``triggers``, ``motion``
+``frame`` (MovingFrame, FrameLimits), ``kinematics`` (robot type and dimension, checked at
+MasterFrame assignment), ``sources``, ``window``, ``triggers``, ``motion``
 (virtual robot), ``tracker`` (the core tracker with the arc de-sync), ``robot`` (RobotGroup:
 MasterFrame, slave, IMFS, hand-off), ``catch`` (can it catch this item?), ``telemetry``
 (per-item figures), ``cell`` (stepping), ``replay`` (record/replay of encoder counts and
@@ -31,6 +32,7 @@ from .errors import (ITEM_MISSED_CODE, ArcGeometryError, FrameBusyError, NoFrame
                      TooManyFramesError, TriggerBufferFull)
 from .frame import LINEAR, ROTARY, ROTARY_DECOUPLED, FrameLimits, MovingFrame
 from .frames import ArcGeometry, FramePoint, LinearGeometry, RotaryGeometry, arc_from_points
+from .kinematics import Kinematics, KinematicsError, RobotType
 from .location import Location, compound, oplus, ominus, q_axis_angle
 from .motion import KEEP, Motion, MotionLimits, SCurve, VirtualRobot
 from .robot import Event, FrameLink, LinkState, RobotGroup, RobotOutput
@@ -44,6 +46,7 @@ __all__ = [
     "ArcGeometry", "ArcGeometryError", "ArcPath", "CatchPrediction", "ConveyorCell",
     "ConveyorTracker", "EncoderSource", "Event", "FrameBusyError", "FrameLimits", "FrameLink",
     "FramePoint", "FrameSource", "ITEM_MISSED_CODE", "ItemRecord", "ItemStatus", "KEEP",
+    "Kinematics", "KinematicsError", "RobotType",
     "LINEAR", "LinearGeometry", "LinkState", "Location", "Motion", "MotionLimits",
     "MovingFrame", "NoFrameError", "ROTARY", "ROTARY_DECOUPLED", "RobotGroup", "RobotOutput",
     "RotaryGeometry", "SCurve", "SimulatedAxis", "SourceState", "TooManyFramesError",

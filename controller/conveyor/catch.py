@@ -102,7 +102,7 @@ def predict_catch(robot, frame: MovingFrame | None = None, item: TriggerEntry | 
     link = robot.link_for(fr)
     if item is None:
         item = link.item if link is not None and link.item is not None else \
-            robot.buffer.current(fr.name)
+            robot.current_item(fr)
     if item is None:
         return CatchPrediction(False, f"no item of frame {fr.name!r} in the buffer", fr.name,
                                None, True)

@@ -37,6 +37,7 @@ from typing import Sequence
 from ..errors import ParameterError, StateError
 from ..tracking import Limits, TrackError
 from .frames import FramePoint, LinearGeometry, RotaryGeometry
+from .kinematics import Kinematics
 from .location import Location, Vec3, as_location, v_norm
 from .sources import MasterSource, SourceState
 from .triggers import TriggerEntry
@@ -83,7 +84,9 @@ class MovingFrame:
     (one per DOF), ``scales`` [mm per source unit].  Rotary parameters: ``upstream``
     (UpStream[1], a Location), ``arc_point``, ``downstream`` (positions), ``up_master`` /
     ``down_master`` (UpMaster[1] / DownMaster[1], source units) or ``deg_per_unit``.
-    ``window``: :class:`Window` in frame units (default: unlimited).
+    ``window``: :class:`Window` in frame units (default: unlimited).  ``world``: the
+    kinematics of the frame's world frame (robot type and dimension), checked at MasterFrame
+    assignment (None: the robot's own).
     """
 
     def __init__(self, name: str, sources: Sequence[MasterSource] = (), *, type: int = LINEAR,
@@ -95,8 +98,13 @@ class MovingFrame:
                  downstream: Sequence[float] | None = None, up_master: float = 0.0,
                  down_master: float | None = None, deg_per_unit: float | None = None,
                  limits: FrameLimits = FrameLimits(), window: Window | None = None,
-                 trigger_delay_s: float = 0.0) -> None:
+                 trigger_delay_s: float = 0.0, world: "Kinematics | None" = None) -> None:
         self.name = str(name)
+        #: the kinematics of the world frame the frame's object is given in (None: the
+        #: robot's own; :func:`controller.conveyor.kinematics.check_compatible`)
+        if world is not None and not isinstance(world, Kinematics):
+            raise ParameterError(f"frame {name!r}: world (={world!r}) must be a Kinematics")
+        self.world = world
         self.sources = tuple(sources)
         n = nof if nof is not None else (len(self.sources) or 1)
         if int(n) != n or n < 1:

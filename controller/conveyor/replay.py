@@ -38,6 +38,8 @@ class TriggerEvent:
     values: tuple[float, ...] | None = None
     dr_mm: float = 0.0
     inverse: bool = False
+    #: the item type (0...255)
+    item_type: int = 0
     #: the line of the trigger log it was read from (None: not read from a file)
     line: int | None = field(default=None, compare=False, repr=False)
 
@@ -93,14 +95,18 @@ def write_trigger_log(path: str | Path, events: Sequence[TriggerEvent]) -> Path:
     path = Path(path)
     with path.open("w", newline="", encoding="utf-8") as fh:
         w = csv.writer(fh, lineterminator="\n")
-        w.writerow(["sample", "robot", "frame", "values", "dr_mm", "inverse"])
+        typed = any(e.item_type for e in events)   # the type column only when used
+        w.writerow(list(TRIGGER_LOG_COLUMNS) + (["type"] if typed else []))
         for e in events:
             vals = "" if e.values is None else ";".join(repr(float(v)) for v in e.values)
-            w.writerow([e.sample, e.robot, e.frame, vals, repr(float(e.dr_mm)), int(e.inverse)])
+            w.writerow([e.sample, e.robot, e.frame, vals, repr(float(e.dr_mm)), int(e.inverse)]
+                       + ([e.item_type] if typed else []))
     return path
 
 
 TRIGGER_LOG_COLUMNS = ("sample", "robot", "frame", "values", "dr_mm", "inverse")
+#: the optional last column: the item type
+TRIGGER_LOG_TYPE = "type"
 
 
 def read_trigger_log(path: str | Path) -> list[TriggerEvent]:
@@ -114,9 +120,12 @@ def read_trigger_log(path: str | Path) -> list[TriggerEvent]:
     rows = [(i, r) for i, r in enumerate(csv.reader(lines), start=1)
             if r and any(c.strip() for c in r) and not r[0].lstrip().startswith("#")]
     expected = list(TRIGGER_LOG_COLUMNS)
-    if not rows or [c.strip() for c in rows[0][1]] != expected:
-        raise ConfigError(f"header must be: {', '.join(expected)}", file=str(path),
-                          line=rows[0][0] if rows else 1)
+    header = [c.strip() for c in rows[0][1]] if rows else []
+    if header == expected + [TRIGGER_LOG_TYPE]:
+        expected = header
+    if header != expected:
+        raise ConfigError(f"header must be: {', '.join(expected)}[, {TRIGGER_LOG_TYPE}]",
+                          file=str(path), line=rows[0][0] if rows else 1)
     out = []
     prev = 0
     for i, r in rows[1:]:
@@ -150,8 +159,14 @@ def read_trigger_log(path: str | Path) -> list[TriggerEvent]:
             raise bad("dr_mm", f"not a number: {cell['dr_mm']!r}") from None
         if cell["inverse"] not in ("0", "1"):
             raise bad("inverse", f"must be 0 or 1, got {cell['inverse']!r}")
+        item_type = 0
+        if TRIGGER_LOG_TYPE in cell:
+            t = cell[TRIGGER_LOG_TYPE]
+            if not (t.isdigit() and 0 <= int(t) <= 255):
+                raise bad(TRIGGER_LOG_TYPE, f"must be an integer in [0...255], got {t!r}")
+            item_type = int(t)
         out.append(TriggerEvent(sample, cell["robot"], cell["frame"], vals, dr,
-                                cell["inverse"] == "1", line=i))
+                                cell["inverse"] == "1", item_type, line=i))
     return out
 
 
@@ -190,7 +205,8 @@ def replay(cell: ConveyorCell, triggers: Sequence[TriggerEvent], n_samples: int,
     def give(k: int) -> None:
         for e in by_sample.get(k, ()):
             cell.robot(e.robot).trigger(frames.get(e.frame, e.frame), values=e.values,
-                                        dr_mm=e.dr_mm, inverse=e.inverse)
+                                        dr_mm=e.dr_mm, inverse=e.inverse,
+                                        item_type=e.item_type)
 
     give(cell.k)
     for _ in range(n_samples):

@@ -95,12 +95,13 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from enum import IntEnum
-from typing import Any, Sequence
+from typing import Any, Iterable, Mapping, Sequence
 
 from ..errors import CantrackError, ParameterError, StateError
 from ..tracking import Imfs, Mode, MotionState, TrackError, TrackerParams, TrackState
 from .errors import (ITEM_MISSED_CODE, FrameBusyError, NoFrameError, TooManyFramesError)
 from .frame import MovingFrame
+from .kinematics import Kinematics, check_compatible
 from .frames import FramePoint, RotaryGeometry
 from .location import (Q_IDENTITY, Location, Quat, Vec3, as_location, q_axis_angle, q_conj,
                        q_mul, q_to_axis_angle, q_twist_angle)
@@ -333,6 +334,8 @@ class FrameLink:
 
     def _close_item(self, k: int, ev: list[Event], status: ItemStatus | None) -> None:
         """The current item is finished for this link (left, NEXTITEM, missed, skipped)."""
+        if self.item is not None:
+            self.robot._drop_untracked(self.item, k, ev)
         rec = self.record
         if rec is not None:
             if status is not None and not (status == ItemStatus.SKIPPED and rec.caught):
@@ -350,7 +353,7 @@ class FrameLink:
         """Finish the current item and go on with the next item of this frame."""
         caught_before = self.record is not None and self.record.caught
         self._close_item(k, ev, status if not caught_before else None)
-        nxt = self.robot.buffer.current(self.frame.name)
+        nxt = self.robot._current(self.frame.name)
         tr = self.tracker
         active = tr.state in (TrackState.SYNCING, TrackState.SYNCED)
         if nxt is not None:
@@ -393,7 +396,7 @@ class FrameLink:
         """One sample: window logic, tracker update, de-sync bookkeeping, telemetry."""
         err = TrackError.NONE
         if self.item is None and not self.leaving:
-            nxt = self.robot.buffer.current(self.frame.name)
+            nxt = self.robot._current(self.frame.name)
             if nxt is not None:
                 self._take(nxt, k, ev)
         elif self.item is not None:
@@ -510,6 +513,16 @@ class FrameLink:
                         message=f"along the {self.tracker.desync_path}"))
 
 
+#: item types are 0...255 (one UNSIGNED8 in a CANopen object)
+ITEM_TYPE_MAX = 255
+
+
+def _check_item_type(value: Any, what: str) -> None:
+    if isinstance(value, bool) or not isinstance(value, int) or \
+            not 0 <= value <= ITEM_TYPE_MAX:
+        raise ParameterError(f"{what} (={value!r}) must be an integer in [0...{ITEM_TYPE_MAX}]")
+
+
 class RobotGroup:
     """A robot group that tracks moving frames (see the module docstring).
 
@@ -518,14 +531,22 @@ class RobotGroup:
     core's absolute mode; ``master_max_*`` come from the frame).  ``start``: the TCP location
     in world coordinates at sample 0; ``base``/``tool``: the robot's base and tool frames.
     ``default_mode``: the slave value a MasterFrame assignment starts with (5).
+    ``kinematics``: the robot type and its world frame's dimension; a MasterFrame of another
+    kinematics system is rejected (:class:`controller.conveyor.kinematics.KinematicsError`).
     """
 
     def __init__(self, name: str, tracker: TrackerParams | None = None, *,
                  start: Location | Sequence[float] = Location(),
                  base: Location = Location(), tool: Location = Location(),
                  motion_limits: MotionLimits = MotionLimits(), buffer_capacity: int = 32,
-                 default_mode: Mode | int = Mode.RELATIVE) -> None:
+                 default_mode: Mode | int = Mode.RELATIVE,
+                 kinematics: Kinematics = Kinematics()) -> None:
         self.name = str(name)
+        if not isinstance(kinematics, Kinematics):
+            raise ParameterError(f"robot {name!r}: kinematics (={kinematics!r}) must be a "
+                                 "Kinematics")
+        #: robot type and world-frame dimension, checked against each MasterFrame
+        self.kinematics = kinematics
         self.tracker_params = tracker if tracker is not None else TrackerParams(
             sample_time_s=0.002, planner="softmc")
         self.T = self.tracker_params.sample_time_s
@@ -543,6 +564,8 @@ class RobotGroup:
         self._last_frame: MovingFrame | None = None
         self._pending: list[Event] = []
         self._ids = 0
+        #: tracked item types per frame name (absent: every type)
+        self._types: dict[str, frozenset[int]] = {}
         #: telemetry per trigger entry id
         self.records: dict[int, ItemRecord] = {}
         self.setpoint = start
@@ -646,6 +669,7 @@ class RobotGroup:
         mode = Mode(mode)
         if mode == Mode.OFF:
             raise ParameterError("mode (=0) must be 3 or 5")
+        check_compatible(self.name, self.kinematics, frame)  # KinematicsError
         frame._link()  # circle pre-calculation: ArcGeometryError for collinear points
         if active is not None:
             active.leave(k, ev, f"hand-off to {frame.name!r}")
@@ -696,6 +720,44 @@ class RobotGroup:
         if not self.links:
             self._slave = 0
 
+    # -- item types -------------------------------------------------------------------------
+    def track_types(self, frame: MovingFrame | str, types: Iterable[int] | None) -> None:
+        """Track only items of ``types`` on ``frame`` (None: every type, the default).
+
+        The link takes the oldest item of a tracked type; NEXTITEM skips the others; they
+        never enter the window logic (no engage, no 30238) and are dropped (IGNORED) once an
+        item triggered after them has been finished.  Acts from the next update.
+        """
+        name = frame if isinstance(frame, str) else frame.name
+        if types is None:
+            self._types.pop(name, None)
+            return
+        ts = frozenset(types)
+        for t in ts:
+            _check_item_type(t, f"{self.name}.track_types({name!r})")
+        if not ts:
+            raise ParameterError(f"{self.name}.track_types({name!r}): give at least one item "
+                                 "type (None tracks every type)")
+        self._types[name] = ts
+
+    def tracked_types(self, frame: MovingFrame | str) -> frozenset[int] | None:
+        """The item types tracked on ``frame`` (None: every type)."""
+        return self._types.get(frame if isinstance(frame, str) else frame.name)
+
+    def _current(self, frame: str) -> TriggerEntry | None:
+        return self.buffer.current(frame, self._types.get(frame))
+
+    def _drop_untracked(self, entry: TriggerEntry, k: int, ev: list[Event]) -> None:
+        types = self._types.get(entry.frame)
+        if types is None:
+            return
+        for e in self.buffer.drop_untracked_before(entry, types):
+            rec = self.records.get(e.id)
+            if rec is not None and rec.status == ItemStatus.PENDING:
+                rec.status = ItemStatus.IGNORED
+            ev.append(Event(k, "item_ignored", e.frame, e.id,
+                            message=f"type {e.item_type} is not tracked"))
+
     # -- triggers ---------------------------------------------------------------------------
     def _resolve(self, frame: MovingFrame | str | None, command: str) -> MovingFrame | str:
         if frame is not None:
@@ -713,14 +775,18 @@ class RobotGroup:
     def trigger(self, frame: MovingFrame | str | None = None, *, ndof: int | None = None,
                 value: float | None = None, values: Sequence[float] | None = None,
                 dr_mm: float = 0.0, inverse: bool = False,
-                age_s: float | None = None) -> TriggerEntry:
-        """``TRIGGER <robot> {NDOF = ndof Value = value} {MasterFrame = frame}``.
+                age_s: float | None = None, item_type: int = 0,
+                attributes: Mapping[str, float | str] | None = None) -> TriggerEntry:
+        """``TRIGGER <robot> {NDOF = ndof Value = value} {MasterFrame = frame}
+        {Type = item_type}``.
 
         The entry's master values are the frame's source values latched now, corrected for
         the delay from the sensor edge (``age_s`` [s], default the frame's
         ``trigger_delay_s``: taken back along the sources' motion), or ``values`` (all DOFs,
         as given), with DOF ``ndof`` (1-based) set to ``value`` if given.
-        ``dr_mm``: radius offset (rotary frames); ``inverse``: the window direction flag.
+        ``dr_mm``: radius offset (rotary frames); ``inverse``: the window direction flag;
+        ``item_type``: the item's class (0...255; see :meth:`track_types`), ``attributes``:
+        what else the sensor says about it (name -> number or text), kept in the entry.
         Raises :class:`TriggerBufferFull` when the buffer is full.
         """
         fr = self._resolve(frame, "TRIGGER")
@@ -747,12 +813,24 @@ class RobotGroup:
             vals[ndof - 1] = float(value)
         if not (isinstance(dr_mm, (int, float)) and math.isfinite(dr_mm)):
             raise ParameterError(f"TRIGGER: radius offset (={dr_mm!r}) must be finite [mm]")
+        _check_item_type(item_type, f"TRIGGER {self.name}: Type")
+        attrs: tuple[tuple[str, float | str], ...] = ()
+        if attributes:
+            for key, v in attributes.items():
+                if not isinstance(key, str) or not key or isinstance(v, bool) or not (
+                        isinstance(v, str) or (isinstance(v, (int, float))
+                                               and math.isfinite(v))):
+                    raise ParameterError(f"TRIGGER {self.name}: attribute {key!r} (={v!r}) "
+                                         "must be a name with a finite number or a text")
+            attrs = tuple((k, v if isinstance(v, str) else float(v))
+                          for k, v in attributes.items())
         self._ids += 1
         linked = self.link_for(name) is not None
         entry = TriggerEntry(self._ids, name, tuple(vals), float(dr_mm), bool(inverse), self.k,
-                             linked)
+                             linked, int(item_type), attrs)
         self.buffer.add(entry)  # raises TriggerBufferFull (the id is not reused: fine)
-        self.records[entry.id] = ItemRecord(entry.id, name, self.name, self.T, self.k)
+        self.records[entry.id] = ItemRecord(entry.id, name, self.name, self.T, self.k,
+                                            item_type=int(item_type))
         return entry
 
     def _record(self, entry: TriggerEntry) -> ItemRecord:
@@ -768,7 +846,7 @@ class RobotGroup:
         fr = self._resolve(frame, "NEXTITEM")
         name = fr if isinstance(fr, str) else fr.name
         link = self.link_for(name)
-        entry = self.buffer.nextitem(name)
+        entry = self.buffer.nextitem(name, self._types.get(name))
         if entry is None:
             return None
         ev = self._pending
@@ -787,7 +865,7 @@ class RobotGroup:
         link = self.link_for(name)
         if link is not None and link.item is not None:
             return link.item
-        return self.buffer.current(name)
+        return self._current(name)
 
     def zero(self, frame: MovingFrame | None = None) -> Location:
         """``<MF>.zero`` of the frame's current item (the trigger point without an item)."""

@@ -16,7 +16,9 @@ sample indices; times = sample * T).
   the algorithm page's ``dv0*dv < 0``) during the approach, the first sample ignored.
 - ``status``: PENDING (not reached yet), TRACKING, CAUGHT (synchronised), MISSED (left the
   window before it was caught: error 30238), SKIPPED (NEXTITEM / slave = 0 / a hand-off
-  before it was caught), LOST (an error other than "item missed" ended the approach).
+  before it was caught), LOST (an error other than "item missed" ended the approach),
+  IGNORED (a type the robot does not track on that frame: never engaged, never "missed").
+- ``item_type``: the trigger's item type.
 """
 
 from __future__ import annotations
@@ -33,6 +35,7 @@ class ItemStatus(str, Enum):
     MISSED = "missed"
     SKIPPED = "skipped"
     LOST = "lost"
+    IGNORED = "ignored"
 
 
 @dataclass
@@ -55,6 +58,7 @@ class ItemRecord:
     peak_error_approach_deg: float = 0.0
     oscillations: int = 0
     error: str = ""
+    item_type: int = 0
     _dv_prev: tuple | None = field(default=None, repr=False)
 
     @property
@@ -100,4 +104,5 @@ class ItemRecord:
                 "time_to_sync_s": self.time_to_sync_s,
                 "peak_error_approach_mm": self.peak_error_approach_mm,
                 "peak_error_synced_mm": self.peak_error_synced_mm,
-                "oscillations": self.oscillations, "error": self.error}
+                "oscillations": self.oscillations, "error": self.error,
+                "item_type": self.item_type}

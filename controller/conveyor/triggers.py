@@ -15,13 +15,17 @@ the relevant Moving Frame for each value entered.  The ring buffer is an element
 - NEXTITEM works on the entries of its frame only; entries of other frames are skipped (kept).
 - ``slave = 0`` deletes every entry (:meth:`TriggerBuffer.clear`).
 - A full buffer rejects the new entry with :class:`TriggerBufferFull`: never a silent drop.
+- Item types ("you can classify objects in the working frame and only track certain types of
+  objects"): an entry carries ``item_type`` (an integer 0...255, 0 by default) and optional
+  ``attributes``; :meth:`TriggerBuffer.current` / :meth:`TriggerBuffer.nextitem` take the
+  set of tracked types and skip (keep) entries of other types.
 """
 
 from __future__ import annotations
 
 from collections import deque
 from dataclasses import dataclass, replace
-from typing import Iterator
+from typing import AbstractSet, Iterator
 
 from ..errors import ParameterError
 from .errors import TriggerBufferFull
@@ -32,7 +36,9 @@ class TriggerEntry:
     """One item: ``frame`` (name), ``values`` per DOF [source units], ``dr_mm``, ``inverse``.
 
     ``id``: running number per robot; ``sample``: the robot sample of the TRIGGER command;
-    ``linked``: whether the frame was linked to the robot when the entry was made.
+    ``linked``: whether the frame was linked to the robot when the entry was made;
+    ``item_type``: the item's class (0...255); ``attributes``: (name, value) pairs the sensor
+    gave with it (e.g. ``(("height_mm", 42.0),)``), kept for the program.
     """
 
     id: int
@@ -42,6 +48,15 @@ class TriggerEntry:
     inverse: bool = False
     sample: int = 0
     linked: bool = True
+    item_type: int = 0
+    attributes: tuple[tuple[str, float | str], ...] = ()
+
+    def attribute(self, name: str, default: float | str | None = None) -> float | str | None:
+        """The value of attribute ``name`` (``default`` if the trigger did not give it)."""
+        for k, v in self.attributes:
+            if k == name:
+                return v
+        return default
 
     def with_(self, **changes) -> "TriggerEntry":
         return replace(self, **changes)
@@ -81,16 +96,19 @@ class TriggerBuffer:
         """Entries (oldest first), only those of ``frame`` if given."""
         return tuple(e for e in self._entries if frame is None or e.frame == frame)
 
-    def current(self, frame: str) -> TriggerEntry | None:
-        """The oldest entry of ``frame`` (the item being tracked), or None."""
+    def current(self, frame: str, types: AbstractSet[int] | None = None
+                ) -> TriggerEntry | None:
+        """The oldest entry of ``frame`` of a type in ``types`` (None: any type), or None."""
         for e in self._entries:
-            if e.frame == frame:
+            if e.frame == frame and (types is None or e.item_type in types):
                 return e
         return None
 
-    def nextitem(self, frame: str) -> TriggerEntry | None:
-        """Delete the oldest entry of ``frame`` (skipping other frames'); returns it or None."""
-        e = self.current(frame)
+    def nextitem(self, frame: str, types: AbstractSet[int] | None = None
+                 ) -> TriggerEntry | None:
+        """Delete the oldest entry of ``frame`` of a tracked type (skipping other frames' and
+        other types'); returns it or None."""
+        e = self.current(frame, types)
         if e is not None:
             self._entries.remove(e)
         return e
@@ -101,6 +119,17 @@ class TriggerBuffer:
             return True
         except ValueError:
             return False
+
+    def drop_untracked_before(self, entry: TriggerEntry, types: AbstractSet[int]
+                              ) -> list[TriggerEntry]:
+        """Delete the entries of ``entry``'s frame with a type not in ``types`` that are
+        older than ``entry`` (triggered before it, so further on the belt: the robot will
+        never track them); returns them."""
+        out = [e for e in self._entries if e.frame == entry.frame and e.id < entry.id
+               and e.item_type not in types]
+        for e in out:
+            self._entries.remove(e)
+        return out
 
     def clear(self) -> int:
         """Delete every entry (``slave = 0``); returns how many were deleted."""

@@ -493,7 +493,7 @@ class PickProgram:
                         (f": {e.message}" if e.message else "")
                 self.state = "recover"
         if self.state == "idle":
-            item = r.buffer.current(f.name)
+            item = r.current_item(f)
             if item is None:
                 return
             self.item = item
