@@ -14,13 +14,12 @@ with ``planner="optimal"`` is rejected with a :class:`ParameterError` naming its
 trackers of a batch share one clock (the same ``sample_time_s``).
 
 Sources: the same as the scalar path -- the state machine of ``tracker.py`` (OFF ->
-SYNCING -> SYNCED -> DESYNCING -> OFF; algorithm page states "Tracking process", "Full
-Synchronization follow the master", "Stopping"), the softMC channel step of ``softmc.py``
-(algorithm page 1.2.1-1.2.5.7, including the ``SoftMcOptions`` switches such as
+SYNCING -> SYNCED -> DESYNCING -> OFF; docs/spec/tracking.md#2.1), the softMC channel step
+of ``softmc.py`` (docs/spec/tracking.md#3, including the ``SoftMcOptions`` switches such as
 ``time_to_reach_k`` and ``directional_k``), the over-oscillation monitor of
-``oscillation.py`` (1.2.5.8: counted flips -- half-swings whose peak |dv| exceeded 2*g*A*T --
-inside a sliding window) and the sine-acceleration stop of ``desync.py`` (overview page,
-Functional Changes item 5).  This module re-implements none of the equations differently:
+``oscillation.py`` (docs/spec/tracking.md#4.2: counted flips -- half-swings whose peak |dv|
+exceeded 2*g*A*T -- inside a sliding window) and the sine-acceleration stop of ``desync.py``
+(docs/spec/tracking.md#5.2).  This module re-implements none of the equations differently:
 it performs the same floating-point operations in the same order on float64 arrays, and
 tests/test_batch.py checks every output bit against N scalar trackers.  When the scalar
 code changes, this module has to follow (the test fails until it does).
@@ -227,7 +226,7 @@ def _softmc_step(T: float, p, v, a, dp0, ddp0, mp, mv, ma, c: _Cols):
     nrm += sq[:, 2]
     np.sqrt(nrm, out=nrm)
     pdn, vdn, mvn, vn = nrm
-    # K = k_faster if master_speed > robot_speed else k_slower  (page: 4, 2); option
+    # K = k_faster if master_speed > robot_speed else k_slower  (published: 4, 2); option
     # directional_k: "faster" when closing > 0.0 (time_to_reach gets (1, 0) or (0, 1))
     faster = mvn > vn
     if c.any_directional:
@@ -266,7 +265,7 @@ def _softmc_step(T: float, p, v, a, dp0, ddp0, mp, mv, ma, c: _Cols):
     # pred_acc = ma (or 0.0: literal)
     pa = np.where(c.pred_acc, ma, 0.0) if c.any_no_pred_acc else ma
 
-    # quintic coefficients (page's nested form); 1.2.4 increment.  Scratch: x, y (= h)
+    # quintic coefficients (nested form, #3.4); increment (#3.5).  Scratch: x, y (= h)
     x = np.empty(shape)
     y = h
     # c3 = (0.5*(pa - 3.0*a) + (10.0*pd/D - 6.0*v - 4.0*pv)/D)/D
@@ -533,7 +532,7 @@ class BatchTracker:
             lim = p.effective()
             self._limits.append(lim)
             o = p.softmc
-            # K of the time-to-reach estimate (softmc.time_to_reach; page: 4 and 2)
+            # K of the time-to-reach estimate (softmc.time_to_reach; published: 4 and 2)
             k_faster, k_slower = getattr(o, "time_to_reach_k", (4.0, 2.0))
             window = max(1, round(p.max_flops_time_s / T))
             max_flops = int(p.max_flops)

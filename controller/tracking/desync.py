@@ -1,23 +1,21 @@
 """De-synchronisation "on the path": a sine-acceleration stop along a path.
 
-Sources: overview page, Functional Changes item 5 ("from a moment of disengagement the real
-motion source will be exchanged for a virtual one with same initial velocity ... reducing the
-initial velocity to zero along the same direction of the Moving Frame"; "The profile of
-de-sync will be always sine-acceleration profile"), and the algorithm page, "State: Stopping"
-(a path parameter alpha with desync.pos/vel/acc = alpha, alpha', alpha'' driven by a profiler;
-p = start*cos(alpha) + normal*sin(alpha) + center for an arc, p = direction*l(t) + pos for a
-line).
+Spec: docs/spec/tracking.md#5.  softMC replaces the real master at disengagement by a
+virtual one with the same initial velocity, reduced to zero along the direction of the
+moving frame with a sine-acceleration profile; its algorithm drives a path parameter alpha
+(alpha, alpha', alpha'' from a profiler; p = start*cos(alpha) + normal*sin(alpha) + center
+for an arc, p = direction*l(t) + pos for a line; #5.1).
 
-The stop profile is not written out in the sources (notes item 11).  Ours: the path speed
+The stop profile is not written out by softMC (docs/spec/tracking.md#5.2).  Ours: the path speed
 s' is brought from v0 to 0 with the acceleration changing along half-cosine ("sine") ramps,
 a(t) = a_s + (a_e - a_s)*(1 - cos(pi*t/tau))/2, whose peak jerk is pi*|a_e - a_s|/(2*tau) = J;
 ramps a0 -> a_p, an optional plateau at a_p = -A, and a_p -> 0.  Velocity, acceleration and
 jerk are continuous; |a| <= max(A, |a0|), |jerk| <= J.
 
-Which initial acceleration: the algorithm page starts from the current acceleration, the
-overview page from zero (notes item 11).  Starting from zero makes an acceleration step (an
-unbounded jerk) when the master was accelerating, so the tracker uses the current one by
-default (``TrackerParams.desync_from_current_acceleration``).
+Which initial acceleration: softMC's algorithm starts from the current acceleration, its
+conveyor overview from zero (docs/spec/tracking.md#5.3).  Starting from zero makes an
+acceleration step (an unbounded jerk) when the master was accelerating, so the tracker
+uses the current one by default (``TrackerParams.desync_from_current_acceleration``).
 """
 
 from __future__ import annotations
@@ -141,7 +139,7 @@ class DesyncPath(Protocol):
     """A path for the de-sync: maps the path coordinate s and its derivatives to a state.
 
     The linear conveyor supplies :class:`LinearPath`; a rotary conveyor supplies an arc
-    (algorithm page: p = start*cos(alpha) + normal*sin(alpha) + center).
+    (p = start*cos(alpha) + normal*sin(alpha) + center, docs/spec/conveyor.md#8.2).
     """
 
     def evaluate(self, s: float, sd: float, sdd: float) -> tuple[Vec, Vec, Vec]:
@@ -151,7 +149,7 @@ class DesyncPath(Protocol):
 
 @dataclass(frozen=True, slots=True)
 class LinearPath:
-    """p = origin + direction*s (algorithm page: p = desync_direction*l(t) + track_pos)."""
+    """p = origin + direction*s (docs/spec/tracking.md#5.1)."""
 
     origin: Vec
     direction: Vec  # unit vector

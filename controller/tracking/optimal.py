@@ -1,16 +1,17 @@
 """The default approach planner ``optimal``: time-optimal, norm-safe, in the master's frame.
 
 One channel (3-D translation in mm, or the 1-D rotation in deg; the same code for n = 1 and
-n = 3).  Why: the page's algorithm (``softmc``, seeds/tracking-algorithm.txt section 1.2)
-re-plans a fixed-time quintic every sample and clamps it; it is slow, may oscillate, and its
-"take the middle" switch makes a jerk spike of 7-37 x J (notes item 9).  This planner keeps
+n = 3); spec: docs/spec/tracking.md#6.  Why: softMC's algorithm (``softmc``,
+docs/spec/tracking.md#3) re-plans a fixed-time quintic every sample and clamps it; it is
+slow, may oscillate, and its "take the middle" switch makes a jerk spike of 7-37 x J
+(docs/spec/tracking.md#3.8).  This planner keeps
 every vector-norm limit by construction, reaches the master in near-minimum time, does not
 oscillate (one time-optimal plan, re-made only when the master deviates from its prediction
 or a better plan exists), and switches to SYNCED with relative position, velocity and
 acceleration all zero, so the switch has no spike.
 
-Time axis (as ``softmc``, notes item 2)
----------------------------------------
+Time axis (as ``softmc``, docs/spec/tracking.md#2.2)
+----------------------------------------------------
 ``step()`` gets the master at sample k, (pm, vm, am); the planner holds the robot setpoint
 (p, v, a) of sample k-1.  The master at (k-1)T is the given one extrapolated back by T at
 constant acceleration: mb = (pm - vm*T + am*T^2/2, vm - am*T, am).

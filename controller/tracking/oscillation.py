@@ -1,12 +1,13 @@
-"""Over-oscillation check of the approach (algorithm page 1.2.5.8, MOT_MASTER_OSC).
+"""Over-oscillation check of the approach (MOT_MASTER_OSC; docs/spec/tracking.md#4).
 
-The page counts sign flips of the velocity error (``dv0*dv < 0``, read as a dot product),
+softMC counts sign flips of the velocity error (``dv0*dv < 0``, read as a dot product),
 ignores the first sample (``flops == -1``), and reports MOT_MASTER_OSC when
 ``flops > maxFlops && flopstime > maxFlopsTime && |dv| > syncGain*sync_accT2``.
 Read literally it cannot fire: ``flopstime`` is reset on every flip, so a sustained
-oscillation that flips more often than maxFlopsTime never trips it (notes item 10); and at a
-flip dv passes through zero, so ``|dv| > threshold`` at that moment rarely holds
-(``sync_accT2`` compares a velocity with a position threshold: A*T is meant).
+oscillation that flips more often than maxFlopsTime never trips it
+(docs/spec/tracking.md#4.1); and at a flip dv passes through zero, so ``|dv| > threshold``
+at that moment rarely holds (``sync_accT2`` compares a velocity with a position threshold:
+A*T is meant).
 
 Our reading: a flip counts when the velocity error's peak magnitude since the previous flip
 exceeded twice g*A*T (a half-swing of real amplitude, not the small decaying wobble of an
@@ -14,7 +15,7 @@ approach about to synchronise, whose |dv| is near the sync threshold g*A*T).  Mo
 (``max_flops_time_s``) is an over-oscillation.  A converging approach makes at most a few
 large half-swings; a sustained oscillation keeps making them, whatever its period — slow
 limit cycles of 0.5-1 s periods included (they go unnoticed by a short window or by the
-page's test).  The approach timeout is the backstop for anything slower.
+published test).  The approach timeout is the backstop for anything slower.
 """
 
 from __future__ import annotations
@@ -32,7 +33,7 @@ class OscillationMonitor:
         self.window = max(1, int(window_samples))
         self.dv_threshold = float(dv_threshold)
         self._flips: deque[int] = deque()
-        self._dv0: Vec | None = None  # None: the first sample is ignored (page: flops = -1)
+        self._dv0: Vec | None = None  # None: the first sample is ignored (softMC: flops = -1)
         self._peak = 0.0  # largest |dv| since the last flip
 
     def reset(self) -> None:

@@ -1,42 +1,43 @@
 """The softMC multi-dimensional tracking algorithm (approach phase), one channel.
 
-Source: seeds/tracking-algorithm.txt, "State: Tracking process" (sections 1.2.1-1.2.5.7).
+Spec: docs/spec/tracking.md#3 (the approach, section by section; the readings chosen where
+the published algorithm is wrong are named switches of ``SoftMcOptions``, table #3.10).
 The same code runs the 3-D translation channel (mm) and the 1-D rotation channel (deg).
 
 Per sample (period T) the planner gets the master's state at this sample (pm, vm, am) and
 holds the robot setpoint of the previous sample (p, v, a).  It computes:
 
-1. Time to reach (1.2.2):  D = sqrt(K*|vm - v| / J) + sqrt(4*|pm - p| / A),
-   page: K = 4 if |vm| > |v| else 2.  Our reading (option ``time_to_reach_k``, default
-   (16, 16)): the page's own comment says the time doubles because the robot must pass the
+1. Time to reach (docs/spec/tracking.md#3.2):  D = sqrt(K*|vm - v| / J) + sqrt(4*|pm - p| / A),
+   published: K = 4 if |vm| > |v| else 2.  Our reading (option ``time_to_reach_k``, default
+   (16, 16)): the published comment says the time doubles because the robot must pass the
    master's speed and come back; a jerk-limited speed change takes sqrt(4*|dv|/J), twice that
-   is sqrt(16*|dv|/J).  With the page's K the fixed algorithm limit-cycles whenever the
+   is sqrt(16*|dv|/J).  With the published K the fixed algorithm limit-cycles whenever the
    velocity error dominates (relative mode, robot already at the master);
    D *= DampingFactor;  D = T*int(D/T + 1)  (floor + 1: always >= T).
-2. Rendezvous prediction (1.2.3) with t = D - T: the quintic starts at the previous sample
-   (k-1)T and ends at (k-1)T + D = kT + t, so the master is predicted t ahead of its sample
-   (notes item 2: this "- T" is a time-origin shift, not a typo).
+2. Rendezvous prediction (docs/spec/tracking.md#3.3) with t = D - T: the quintic starts at
+   the previous sample (k-1)T and ends at (k-1)T + D = kT + t, so the master is predicted t
+   ahead of its sample (this "- T" is a time-origin shift, not a typo: #2.2).
    pred_pos = pm + t*vm + t^2*am/2,  pred_vel = vm + t*am,
-   pred_acc = am  (notes item 3; the page's literal "pred_acc = 0" is option
-   ``pred_acc_from_master=False``).
-3. Quintic coefficients a3, a4, a5 in the page's nested form (they are the standard quintic,
-   notes item 4) and the increment dp = a5*T^5 + a4*T^4 + a3*T^3 + a*T^2/2 + v*T  (1.2.4).
-4. Filter (1.2.5): |dp| <= V*T, |ddp| = |dp - dp0| <= A*T^2, |dddp| = |ddp - ddp0| <= J*T^3,
-   each clamp along the vector's own direction, later clamps re-deriving dp.
-   Option ``braking_distance_velocity`` (notes item 7) lowers the velocity cap to
+   pred_acc = am  (the published "pred_acc = 0" is option ``pred_acc_from_master=False``).
+3. Quintic coefficients a3, a4, a5 in the published nested form (they are the standard
+   quintic, docs/spec/tracking.md#3.4) and the increment
+   dp = a5*T^5 + a4*T^4 + a3*T^3 + a*T^2/2 + v*T  (#3.5).
+4. Filter (docs/spec/tracking.md#3.6): |dp| <= V*T, |ddp| = |dp - dp0| <= A*T^2,
+   |dddp| = |ddp - ddp0| <= J*T^3, each clamp along the vector's own direction, later clamps
+   re-deriving dp.  Option ``braking_distance_velocity`` lowers the velocity cap to
    V - a_t^2/(2J), a_t the acceleration along the motion, so that the jerk clamp cannot carry
    the velocity over V.
-5. New state: p += dp; if a clamp acted, v and a come from the increments.  The page feeds
-   back dp/T and ddp/T^2 (mid-sample averages; notes item 8, the key bug that makes the jerk
-   clamp flip every cycle).  We use the end-of-sample values of the constant-jerk sample,
-   v = (dp + ddp/2 + dddp/3)/T, a = (ddp + dddp)/T^2 (option ``end_of_sample_feedback``).
-   Without a clamp, v and a are the quintic's derivatives at T (as the page says).
-6. Synchronised (1.2.5.6-7) when |vm - v| <= g*A*T and |pm - p| <= g*A*T^2 (g = FilterFactor;
-   notes item 9).  Then "take the middle": p = (p + pm)/2, v = (v + vm)/2, and from the next
-   sample on the tracker copies the master.  The middle step makes the jerk spike of about
-   g*A/T that the page's algorithm always has (7-37 x J); it is kept (option
+5. New state (docs/spec/tracking.md#3.7): p += dp; if a clamp acted, v and a come from the
+   increments.  The published algorithm feeds back dp/T and ddp/T^2 (mid-sample averages, the
+   key defect that makes the jerk clamp flip every cycle).  We use the end-of-sample values
+   of the constant-jerk sample, v = (dp + ddp/2 + dddp/3)/T, a = (ddp + dddp)/T^2 (option
+   ``end_of_sample_feedback``).  Without a clamp, v and a are the quintic's derivatives at T.
+6. Synchronised (docs/spec/tracking.md#3.8) when |vm - v| <= g*A*T and |pm - p| <= g*A*T^2
+   (g = FilterFactor).  Then "take the middle": p = (p + pm)/2, v = (v + vm)/2, and from the
+   next sample on the tracker copies the master.  The middle step makes the jerk spike of
+   about g*A/T that softMC's algorithm always has (7-37 x J); it is kept (option
    ``take_the_middle``) because it is part of the algorithm being reproduced.
-Initial increments (notes item 6): dp0 = v0*T, ddp0 = a0*T^2 (literal: 0).
+Initial increments (docs/spec/tracking.md#3.9): dp0 = v0*T, ddp0 = a0*T^2 (literal: 0).
 """
 
 from __future__ import annotations
@@ -51,9 +52,9 @@ def time_to_reach(pos_diff: float, vel_diff: float, master_speed: float, robot_s
                   acc: float, jerk: float, sample_time_s: float,
                   damping_factor: float = 1.0, k_faster: float = 4.0,
                   k_slower: float = 2.0) -> float:
-    """Time-to-reach estimate D [s] (algorithm page 1.2.2), rounded up to whole samples.
+    """Time-to-reach estimate D [s] (docs/spec/tracking.md#3.2), rounded up to whole samples.
 
-    D = sqrt(K*|dv|/J) + sqrt(4*|dp|/A), K = k_faster if |vm| > |v| else k_slower (the page:
+    D = sqrt(K*|dv|/J) + sqrt(4*|dp|/A), K = k_faster if |vm| > |v| else k_slower (published:
     4 and 2, the defaults here; the planner passes SoftMcOptions.time_to_reach_k); D *= DampingFactor;
     D = T*int(D/T + 1).  ``pos_diff`` [mm], ``vel_diff`` [mm/s] are norms; speeds [mm/s].
     """
@@ -80,7 +81,7 @@ class SoftMcPlanner:
         self.a: Vec = ()
         self.dp0: Vec = ()
         self.ddp0: Vec = ()
-        #: which clamps acted in the last step (the page's sat* flags, which it never sets)
+        #: which clamps acted in the last step (softMC's sat* flags, never set there)
         self.sat_vel = self.sat_acc = self.sat_jerk = False
 
     # -- thresholds -----------------------------------------------------------------
@@ -91,7 +92,7 @@ class SoftMcPlanner:
 
     @property
     def sync_pos_threshold(self) -> float:
-        """|dp| threshold g*A*T^2 (or the overview page's A*T^2/2) [mm or deg]."""
+        """|dp| threshold g*A*T^2 (or softMC's overview's A*T^2/2) [mm or deg]; #3.8."""
         if self.options.unit_consistent_thresholds:
             return self.filter_factor * self.limits.acc * self.T * self.T
         return 0.5 * self.limits.acc * self.T * self.T
@@ -119,7 +120,7 @@ class SoftMcPlanner:
         n = len(p)
         rng = range(n)
 
-        # 1.2.1 differences; 1.2.2 time to reach
+        # differences (#3.1); time to reach (#3.2)
         pdn = 0.0
         vdn = 0.0
         mvn = 0.0
@@ -141,14 +142,14 @@ class SoftMcPlanner:
         D = time_to_reach(math.sqrt(pdn), math.sqrt(vdn), faster, slower,
                           lim.acc, lim.jerk, T, self.damping_factor, *opts.time_to_reach_k)
 
-        # 1.2.3 rendezvous prediction, t = D - T (time-origin shift)
+        # rendezvous prediction (#3.3), t = D - T (time-origin shift)
         t = D - T
         half_t2 = 0.5 * t * t
         pred_diff = [mp[i] + t * mv[i] + half_t2 * ma[i] - p[i] for i in rng]
         pred_vel = [mv[i] + t * ma[i] for i in rng]
         pred_acc = list(ma) if opts.pred_acc_from_master else [0.0] * n
 
-        # quintic coefficients (page's nested form) and 1.2.4 next-sample increment
+        # quintic coefficients (#3.4, the nested form) and next-sample increment (#3.5)
         T2 = T * T
         T3 = T2 * T
         T4 = T3 * T
@@ -168,7 +169,7 @@ class SoftMcPlanner:
             a5.append(c5)
             dp.append(c5 * T5 + c4 * T4 + c3 * T3 + 0.5 * a[i] * T2 + v[i] * T)
 
-        # 1.2.5 velocity, acceleration and jerk filter (vector norms)
+        # velocity, acceleration and jerk filter (#3.6, vector norms)
         dp0, ddp0 = self.dp0, self.ddp0
         sat_v = sat_a = sat_j = False
         vel_cap = lim.vel * T
@@ -219,7 +220,7 @@ class SoftMcPlanner:
         self.dp0 = tuple(dp)
         self.ddp0 = tuple(ddp)
 
-        # 1.2.5.6 synchronised?
+        # synchronised? (#3.8)
         dvn = math.sqrt(sum((mv[i] - new_v[i]) ** 2 for i in rng))
         epn = math.sqrt(sum((mp[i] - new_p[i]) ** 2 for i in rng))
         synced = dvn <= self.sync_vel_threshold and epn <= self.sync_pos_threshold

@@ -1,8 +1,7 @@
 """The tracker: OFF -> SYNCING -> SYNCED -> DESYNCING -> OFF for one robot on one master.
 
-Sources: algorithm page (states "Tracking process", "Full Synchronization follow the master",
-"Stopping") and the overview page ("Absolute/Relative Approach", Functional Changes 2 and 5,
-IMFS values).
+Spec: docs/spec/tracking.md#2 (states #2.1, time axis #2.2, modes #2.3, IMFS #2.4, limits
+#2.5, errors #2.6; the de-sync #5).
 
 Time: the tracker counts samples.  ``update(master)`` is called once per sample period T with
 the master's state *at the time of the setpoint being computed* (sample k); it returns the

@@ -3,8 +3,8 @@
 Units: translation in mm, mm/s, mm/s^2, mm/s^3; rotation (one angle about the tool
 axis) in deg, deg/s, deg/s^2, deg/s^3; time in s.  All types are immutable.
 
-Source: seeds/tracking-algorithm.txt (the algorithm page) and the "Tracking Process" /
-"Functional Changes" parts of seeds/conveyor-tracking.txt (the overview page).
+Spec: docs/spec/tracking.md (the softMC tracking algorithm; states #2.1, modes #2.3, IMFS
+#2.4, limits and rates #2.5, errors #2.6, the readings of ``SoftMcOptions`` #3.10).
 """
 
 from __future__ import annotations
@@ -20,16 +20,16 @@ ZERO3: Vec3 = (0.0, 0.0, 0.0)
 
 
 class TrackState(IntEnum):
-    """Tracker state (overview page, "Tracking Process"; algorithm page state machine)."""
+    """Tracker state (docs/spec/tracking.md#2.1)."""
 
     OFF = 0
-    SYNCING = 1  #: approach ("Tracking process" on the algorithm page)
+    SYNCING = 1  #: approach (softMC's "tracking process")
     SYNCED = 2  #: full synchronisation: follow the master, all derivatives copied
     DESYNCING = 3  #: stopping on the path
 
 
 class Mode(IntEnum):
-    """``<robot>.slave`` values (overview page): 0 off, 3 absolute, 5 relative approach."""
+    """``<robot>.slave``: 0 off, 3 absolute, 5 relative approach (docs/spec/tracking.md#2.3)."""
 
     OFF = 0
     ABSOLUTE = 3
@@ -37,7 +37,7 @@ class Mode(IntEnum):
 
 
 class Imfs(IntEnum):
-    """IsMovingFrameSynchronized (overview page, "Functionality Changes")."""
+    """IsMovingFrameSynchronized (docs/spec/tracking.md#2.4)."""
 
     NOT_SYNCHRONIZED = 0  #: off, or approaching but not yet synchronised
     SYNCHRONIZED = 1  #: following the moving frame directly
@@ -88,9 +88,9 @@ class Limits:
 class Rates:
     """softMC rate overrides in percent (VRATE, ARATE, DRATE, JRATE), 0 < rate <= 100.
 
-    The overview page: "{vel|acc|jerk}{sync|desync}{tran|rot} = min({..}max{tran|rot}, {..}rate)"
+    softMC: "{vel|acc|jerk}{sync|desync}{tran|rot} = min({..}max{tran|rot}, {..}rate)"
     and "arate influences syncing while drate influences de-syncing".  softMC rates are
-    percentages of the robot's maximum, so we read the formula as
+    percentages of the robot's maximum, so we read the formula (docs/spec/tracking.md#2.5) as
     ``effective = min(parameter, robot_max * rate / 100)`` with ARATE scaling the sync
     acceleration and DRATE the de-sync acceleration.
     """
@@ -109,44 +109,48 @@ class Rates:
 
 @dataclass(frozen=True, slots=True)
 class SoftMcOptions:
-    """Fixes to the literal algorithm page, each a named switch (default: the working reading).
-
-    ``SoftMcOptions.literal()`` reproduces the page as written.  Item numbers refer to
-    notes/tracking-algorithm-notes.md.
+    """Fixes to the published softMC algorithm, each a named switch (default: the working
+    reading).  ``SoftMcOptions.literal()`` reproduces the algorithm as published.  Each field
+    names the section of docs/spec/tracking.md that explains it (table: #3.10).
     """
 
-    #: item 1: K of the time-to-reach estimate, (K if |vm| > |v|, K otherwise); page: (4, 2).
-    #: The page's comment: the robot must pass the master's speed and come back, "therefore
-    #: the multiplication by 2".  A jerk-limited speed change by |dv| takes 2*sqrt(|dv|/J)
-    #: = sqrt(4*|dv|/J); twice that is sqrt(16*|dv|/J).  The page's (4, 2) is 2-3x shorter
-    #: than the time-optimal duration (Ruckig: 0.092 s for dv = 200 mm/s, J = 4e5; page:
+    #: docs/spec/tracking.md#3.2: K of the time-to-reach estimate, (K if |vm| > |v|, K
+    #: otherwise); published: (4, 2).  The published comment: the robot must pass the
+    #: master's speed and come back, "therefore the multiplication by 2".  A jerk-limited
+    #: speed change by |dv| takes 2*sqrt(|dv|/J) = sqrt(4*|dv|/J); twice that is
+    #: sqrt(16*|dv|/J).  The published (4, 2) is 2-3x shorter
+    #: than the time-optimal duration (Ruckig: 0.092 s for dv = 200 mm/s, J = 4e5; published:
     #: 0.045 s) and makes the fixed algorithm limit-cycle whenever the velocity error dominates
     #: (relative mode always starts there): 33 of 120 random approaches failed; with (16, 16)
     #: none did.  Both cases use 16 because whether the overshoot is needed depends on the
     #: errors' directions, not on which speed is larger.
     time_to_reach_k: tuple[float, float] = (16.0, 16.0)
-    #: item 1 (experimental): choose K by direction: the first K when the position and
-    #: velocity errors point the same way (the robot must overshoot the master's speed).
+    #: docs/spec/tracking.md#3.2 (experimental): choose K by direction: the first K when the
+    #: position and velocity errors point the same way (the robot must overshoot the
+    #: master's speed).
     #: Measured no better than (16, 16) on the benchmark suite; off by default.
     directional_k: bool = False
-    #: item 3: rendezvous acceleration = master acceleration (literal: ``pred_acc = 0``)
+    #: docs/spec/tracking.md#3.3: rendezvous acceleration = master acceleration
+    #: (literal: ``pred_acc = 0``)
     pred_acc_from_master: bool = True
-    #: item 6: dp0 = v0*T, ddp0 = a0*T^2 at engage (literal: not initialised, i.e. 0)
+    #: docs/spec/tracking.md#3.9: dp0 = v0*T, ddp0 = a0*T^2 at engage (literal: not
+    #: initialised, i.e. 0)
     init_increments_from_state: bool = True
-    #: item 8 (key bug): after a clamp feed back end-of-sample values
+    #: docs/spec/tracking.md#3.7 (the key defect): after a clamp feed back end-of-sample values
     #: v = (dp + ddp/2 + dddp/3)/T, a = (ddp + dddp)/T^2 (literal: dp/T and ddp/T^2)
     end_of_sample_feedback: bool = True
-    #: item 7: cap the velocity step so that |v| + a^2/(2J) <= V (literal: |dp| <= V*T only)
+    #: docs/spec/tracking.md#3.6: cap the velocity step so that |v| + a^2/(2J) <= V
+    #: (literal: |dp| <= V*T only)
     braking_distance_velocity: bool = True
-    #: item 9: the page's "take the middle" step when switching to SYNCED
+    #: docs/spec/tracking.md#3.8: softMC's "take the middle" step when switching to SYNCED
     take_the_middle: bool = True
-    #: item 9: sync thresholds g*A*T and g*A*T^2 (algorithm page); False: overview page's
-    #: "position error < 1/2*A*T^2" with velocity threshold g*A*T
+    #: docs/spec/tracking.md#3.8: sync thresholds g*A*T and g*A*T^2 (softMC's algorithm);
+    #: False: its conveyor overview's "position error < 1/2*A*T^2", velocity threshold g*A*T
     unit_consistent_thresholds: bool = True
 
     @classmethod
     def literal(cls) -> "SoftMcOptions":
-        """The algorithm page exactly as written (for regression tests and comparison)."""
+        """The softMC algorithm exactly as published (for regression tests and comparison)."""
         return cls(time_to_reach_k=(4.0, 2.0), pred_acc_from_master=False, init_increments_from_state=False,
                    end_of_sample_feedback=False, braking_distance_velocity=False,
                    take_the_middle=True, unit_consistent_thresholds=True)
@@ -162,21 +166,22 @@ DEFAULT_ROT = Limits(360.0, 3600.0, 72000.0)
 class TrackerParams:
     """Everything that configures one tracker (one robot group on one moving frame).
 
-    Sync/de-sync limits are the page's ``{Velocity|Acceleration|Jerk}{Sync|DeSync}{Tran|Rot}``;
-    not given, they start at the robot's maxima (conveyor page, Functional Changes item 2:
+    Sync/de-sync limits are softMC's ``{Velocity|Acceleration|Jerk}{Sync|DeSync}{Tran|Rot}``;
+    not given, they start at the robot's maxima (docs/spec/tracking.md#2.5; softMC:
     "default values set by ConfigGroup ... to the initial values of corresponding robot max
     properties"), or at :data:`DEFAULT_TRANS`/:data:`DEFAULT_ROT` without robot maxima.  The
     effective values are capped by the robot's maxima and rates (:meth:`effective`).
     ``master_max_*`` are the moving frame's ``VelocityMaxTrans``/``AccelerationMaxTrans``/...
-    (page defaults 1000 mm/s, 1000 mm/s^2, 100 deg/s, 100 deg/s^2): a master above them is an
-    error that starts the de-sync.  Only velocity and acceleration are monitored; the jerk
-    field is kept for completeness (the page lists JerkMax but monitors vel and acc).
+    (softMC defaults 1000 mm/s, 1000 mm/s^2, 100 deg/s, 100 deg/s^2): a master above them is
+    an error that starts the de-sync.  Only velocity and acceleration are monitored; the jerk
+    field is kept for completeness (softMC lists JerkMax but monitors vel and acc;
+    docs/spec/tracking.md#2.6).
     """
 
     sample_time_s: float = 0.001
     mode: Mode = Mode.ABSOLUTE
     planner: str = "optimal"
-    #: ``None`` (not given): the robot's maxima when given (item 2: ConfigGroup sets them to
+    #: ``None`` (not given): the robot's maxima when given (#2.5: ConfigGroup sets them to
     #: VMTran/AMTran/JMTran, VMRot/...), else :data:`DEFAULT_TRANS` / :data:`DEFAULT_ROT`
     sync_trans: Limits | None = None
     desync_trans: Limits | None = None
@@ -192,20 +197,21 @@ class TrackerParams:
     #: MF.MaxFlops: more large velocity-error sign flips (half-swings whose peak |dv| exceeds
     #: g*A*T) than this within ``max_flops_time_s`` is an over-oscillation
     max_flops: int = 6
-    #: the page's undocumented maxFlopsTime, read as the flip-counting window [s]
+    #: softMC's undocumented maxFlopsTime, read as the flip-counting window [s]
+    #: (docs/spec/tracking.md#4.2)
     max_flops_time_s: float = 3.0
     #: not synchronised after this long [s] -> APPROACH_TIMEOUT
     approach_timeout_s: float = 5.0
     master_max_trans: Limits = Limits(1000.0, 1000.0, 1000.0)
     master_max_rot: Limits = Limits(100.0, 100.0, 100.0)
     softmc: SoftMcOptions = field(default_factory=SoftMcOptions)
-    #: de-sync starts from the current acceleration (algorithm page; jerk-limited, default)
-    #: or from zero acceleration (overview page item 5; an acceleration step if the master
-    #: was accelerating)
+    #: de-sync starts from the current acceleration (softMC's algorithm; jerk-limited,
+    #: default) or from zero acceleration (its conveyor overview; an acceleration step if the
+    #: master was accelerating): docs/spec/tracking.md#5.3
     desync_from_current_acceleration: bool = True
 
     def __post_init__(self) -> None:
-        # item 2: the sync/de-sync values start at the robot's maxima (ConfigGroup)
+        # docs/spec/tracking.md#2.5: the sync/de-sync values start at the robot's maxima
         for name, robot, builtin in (("sync_trans", self.robot_max_trans, DEFAULT_TRANS),
                                      ("desync_trans", self.robot_max_trans, DEFAULT_TRANS),
                                      ("sync_rot", self.robot_max_rot, DEFAULT_ROT),

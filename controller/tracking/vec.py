@@ -40,7 +40,8 @@ def dot(a: Vec, b: Vec) -> float:
 
 
 def clamp_norm(a: Vec, limit: float) -> tuple[Vec, bool]:
-    """``a`` scaled down to norm ``limit`` if longer: ``limit * a/|a|`` (page's ``a*``)."""
+    """``a`` scaled down to norm ``limit`` if longer: ``limit * a/|a|`` (``a*``: the unit
+    vector of docs/spec/tracking.md#1.1)."""
     n = norm(a)
     if n > limit:
         k = limit / n
