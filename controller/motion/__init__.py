@@ -4,8 +4,8 @@ Units: mm, mm/s, mm/s^2, mm/s^3, s (see ``controller/__init__.py``); drive count
 :mod:`.quantize`.  Everything is stepped by an integer sample counter: each ``update()``
 produces the setpoint of the next sample (time k*T).  No clocks, threads or I/O.
 
-Source: seeds/axis-state-machines.en.md (the thesis' tasks Sled_Y and GotoY), with the
-DECCEL position formula fixed (notes/tracking-algorithm-notes.md, "Seed 001").
+Spec: docs/spec/axis.md (the thesis' tasks Sled_Y and GotoY), with the DECCEL position
+formula fixed (docs/spec/axis.md#2.2).
 
 Modules:
     limits    -- :class:`AxisLimits` (V, A, J) and shared validators

@@ -3,7 +3,7 @@
 Units: mm, mm/s, mm/s^2, mm/s^3, s.  Pure: :class:`GotoY` is fed the sensor booleans once
 per sample (``update()``); no clocks, no I/O.
 
-Source: seeds/axis-state-machines.en.md, "Task GotoY".  Same motion algorithm as Sled_Y
+Spec: docs/spec/axis.md#5, the thesis' task GotoY.  Same motion algorithm as Sled_Y
 (``profile.py``), different transitions; the position is unknown, so only ACCEL is planned
 ahead and the rest follows two sensors, the slow-down sensor DSS (``slow_down``) and the
 home-position sensor DNP (``home``):
@@ -16,7 +16,7 @@ Start rules (in BRAKE once the release time has passed): neither sensor -> ACCEL
 CONST -> DEACCEL on DSS; DEACCEL slows to the creep speed -> SMALL_V; SMALL_V -> DOGE on
 DNP; DOGE makes m increments (``push_in_counts``) at the creep speed -> BACK.
 
-Readings chosen where the thesis is silent:
+Readings chosen where the thesis is silent (docs/spec/axis.md#5.2):
 
 * BACK (only named in the thesis) moves ``back_off_mm`` against the homing direction at
   the creep speed, from rest, then the brake engages.

@@ -2,8 +2,8 @@
 
 Units: mm, mm/s, mm/s^2, mm/s^3, s.  Pure; stepped by ``update()`` once per sample.
 
-Not in the thesis; built from the Sled_Y pieces (``ptp.py``) so that a jog behaves like a
-point-to-point move whose CONST phase lasts until the next command:
+Not in the thesis (docs/spec/axis.md#4); built from the Sled_Y pieces (``ptp.py``) so
+that a jog behaves like a point-to-point move whose CONST phase lasts until the next command:
 
     BRAKE_RELEASE -> ACCEL/DECEL (one triangular pulse to the new velocity) -> CONST ...
     stop: DECEL (jerk-limited) -> BRAKE_ENGAGE -> WAIT -> READY

@@ -2,7 +2,7 @@
 
 Units: mm/s, mm/s^2, mm/s^3 (the project's unit legend, see ``controller/__init__.py``).
 
-Source: seeds/axis-state-machines.en.md ("Sled_Y"): the thesis names a maximum velocity
+Spec: docs/spec/axis.md#1.  The thesis' task Sled_Y names a maximum velocity
 ``Vm`` and a constant jerk ``k`` for its triangular acceleration pulses; it names no
 acceleration bound.  We add one (``max_acc``) because a drive has one: a triangular pulse
 whose peak would exceed it is made longer with a smaller jerk (see ``profile.py``).

@@ -3,7 +3,7 @@
 Units: mm, mm/s, mm/s^2, mm/s^3, s.  Pure and deterministic: no clocks, the sampled
 profile is stepped by an integer sample counter (time = i * T).
 
-Source: seeds/axis-state-machines.en.md, task Sled_Y, states ACCEL_SY / CONST_SY / DECCEL.
+Spec: docs/spec/axis.md#2, the thesis' task Sled_Y, states ACCEL_SY / CONST_SY / DECCEL.
 The thesis accelerates and brakes with *triangular acceleration pulses* of constant jerk k:
 
     DECCEL:  a = -k*t            for t <= T2
@@ -15,7 +15,7 @@ ACCEL mirrors it and CONST holds the velocity.  A rest-to-rest move is therefore
 
     ACCEL (+k for T2a, -k for T2a) -> CONST (Tc >= 0) -> DECEL (-k for T2d, +k for T2d)
 
-**Fix of the thesis (Seed 001, notes/tracking-algorithm-notes.md).**  The printed position
+**Fix of the thesis (docs/spec/axis.md#2.2).**  The printed position
 update uses the *new* acceleration ``a`` over the whole step, which does not match its own
 velocity rule (that one averages a0 and a).  For an acceleration that changes linearly over
 the step, the consistent (and exact) update is
@@ -27,13 +27,14 @@ the step, the consistent (and exact) update is
 read with t0 = state entry it is off by k*t^3/3 and the move ends beside its target
 (:func:`integrate_step_thesis_literal` keeps the printed form for the tests that show this).
 
-**Limits.**  The thesis names only Vm and k.  Given an :class:`AxisLimits` (V, A, J) a pulse
-that changes the velocity by dv takes ``T2 = max(sqrt(dv/J), dv/A)`` and ``k = dv/T2^2``:
+**Limits** (docs/spec/axis.md#2.3).  The thesis names only Vm and k.  Given an
+:class:`AxisLimits` (V, A, J) a pulse that changes the velocity by dv takes
+``T2 = max(sqrt(dv/J), dv/A)`` and ``k = dv/T2^2``:
 at full jerk while the peak ``k*T2`` stays below A, otherwise with the peak at A and a lower
 jerk, so the pulse stays triangular (thesis shape) instead of growing a plateau.
 
 **Re-planning** from an arbitrary state (p, v, a) (a target changed mid-move; not in the
-thesis) uses the same pulses; see :func:`plan_position`.
+thesis; docs/spec/axis.md#2.4) uses the same pulses; see :func:`plan_position`.
 """
 
 from __future__ import annotations

@@ -3,14 +3,14 @@
 Units: mm, mm/s, mm/s^2, mm/s^3, s.  Pure and deterministic: the object is stepped by
 ``update()`` once per sample of period T; sample k is at time k*T (integer counter).
 
-Source: seeds/axis-state-machines.en.md, "Task Sled_Y" (table 2.3 of the thesis):
+Spec: docs/spec/axis.md#3, the thesis' task Sled_Y (states #3.1):
 
     STOP_SY -> BRAKE_SY (wait Tbrake) -> ACCEL_SY -> CONST_SY -> DEACCEL_SY -> BRAKE_SY
             -> WAIT (Tstop) -> READY
 
 The thesis' STEP_SY (advance one time step dt) is the ``update()`` call itself.
 
-Readings chosen where the thesis is silent or ambiguous:
+Readings chosen where the thesis is silent or ambiguous (docs/spec/axis.md#3.2):
 
 * The thesis' one BRAKE_SY state (it remembers the previous state to know whether it is
   releasing or engaging) is two states here, :attr:`PtpState.BRAKE_RELEASE` and

@@ -3,7 +3,7 @@
 Units: mm on the controller side, counts (INTEGER32, CiA 402 objects 607Ah target position,
 6064h actual position) on the drive side.
 
-Source: seeds/axis-state-machines.en.md, Sled_Y CONST/DECCEL: "each time the integrated
+Spec: docs/spec/axis.md#6.  The thesis' Sled_Y CONST/DECCEL: "each time the integrated
 position reaches the next whole step, one step of the output link is made".  The thesis
 drove a stepper; we send a position in counts every sample instead, so its "one step at each
 whole increment" becomes rounding the integrated position to the nearest count at the drive
