@@ -1,6 +1,6 @@
 """The softMC conveyor model: moving frames, items, windows, triggers, hand-off.
 
-Source: seeds/conveyor-tracking.txt (the overview page) on top of the tracking core
+Spec: docs/spec/conveyor.md (softMC's conveyor model) on top of the tracking core
 (:mod:`controller.tracking`).  Functional core: deterministic, sample-stepped, no clocks.
 
 Public API::

@@ -1,4 +1,5 @@
-""""Can it catch this item?" - predict the rendezvous before committing (not on the page).
+""""Can it catch this item?" - predict the rendezvous before committing (not
+part of the softMC model, docs/spec/conveyor.md#1).
 
 :func:`predict_catch` answers from the current state, the limits and the window:
 

@@ -9,14 +9,14 @@ from __future__ import annotations
 
 from ..errors import ParameterError, StateError
 
-#: softMC error number of "Item missed..." (overview page, Functional Changes item 11)
+#: softMC error number of "Item missed..." (docs/spec/conveyor.md#7)
 ITEM_MISSED_CODE = 30238
 
 
 class ArcGeometryError(ParameterError):
     """The three points of a rotary moving frame do not define an arc (collinear/coincident).
 
-    Raised where the overview page says ("Theory of operation" -> "Tracking"): when
+    Raised where softMC raises it (docs/spec/conveyor.md#3.4.1): when
     ``<MF>.center`` is queried while the frame is not linked to any robot, and when the frame
     is assigned to ``<robot>.MasterFrame``.
     """
@@ -27,7 +27,7 @@ class FrameBusyError(StateError):
 
 
 class TooManyFramesError(StateError):
-    """A third moving frame given to a robot that follows two (item 9.3)."""
+    """A third moving frame given to a robot that follows two (docs/spec/conveyor.md#9.3)."""
 
 
 class TriggerBufferFull(StateError):

@@ -1,5 +1,4 @@
-"""The moving frame object (overview page: "Moving Frame", Functional Change 2, "Theory of
-operation", "<Moving Frame>.type").
+"""The moving frame object (docs/spec/conveyor.md#3: the frame, its types, limits).
 
 A :class:`MovingFrame` is a softMC moving-frame variable: a named object with a type, NOF
 master sources, a geometry, a window and limits.  It is updated once per sample
@@ -12,20 +11,20 @@ Types (``<MF>.type``, default 0):
 - 1 rotary: the arc through UpStream[1], ArcPoint, DownStream[1] (:mod:`.frames.rotary`);
 - 2 rotary decoupled: as 1, but the orientation does not change with the master source.
 
-Errors where the page puts them:
+Errors where softMC puts them (docs/spec/conveyor.md#3.1, #3.4.1):
 
 - setting ``type`` while the frame is engaged (linked to a robot): :class:`StateError`;
 - ``type`` 1 (and 2, "same as rotary") only with NOF = 1: :class:`ParameterError`
-  (the page's Range says 0-1 but lists 2; we accept 0...2);
+  (softMC's range says 0-1 but lists 2; we accept 0...2);
 - collinear arc points (:class:`ArcGeometryError`): when ``center`` is queried while the frame
   is not linked to any robot, and when the frame is assigned to a robot's MasterFrame (the
   "circle pre-calculation").  While linked, the pre-calculated geometry is used.
 
-Limits (Functional Change 2, names and defaults of the page): VelocityMaxTrans 1000 mm/s,
+Limits (docs/spec/conveyor.md#3.5, softMC's names and defaults): VelocityMaxTrans 1000 mm/s,
 AccelerationMaxTrans 1000 mm/s^2, JerkMaxTrans 1000 mm/s^3, VelocityMaxRot 100 deg/s,
 AccelerationMaxRot 100 deg/s^2, JerkMaxRot 100 deg/s^3.  A master above the velocity or
 acceleration maxima is an error (the tracker's MASTER_VELOCITY / MASTER_ACCELERATION, which
-starts the de-sync); jerk is not monitored (the page monitors "velocities & accelerations").
+starts the de-sync); jerk is not monitored (softMC monitors "velocities & accelerations").
 """
 
 from __future__ import annotations
@@ -49,7 +48,7 @@ TYPE_NAMES = {LINEAR: "linear", ROTARY: "rotary", ROTARY_DECOUPLED: "rotary deco
 
 @dataclass(frozen=True, slots=True)
 class FrameLimits:
-    """``<Moving Frame>.{Velocity|Acceleration|Jerk}Max{Trans|Rot}`` with the page's defaults.
+    """``<Moving Frame>.{Velocity|Acceleration|Jerk}Max{Trans|Rot}`` with softMC's defaults.
 
     Units: mm/s, mm/s^2, mm/s^3; deg/s, deg/s^2, deg/s^3.
     """
@@ -128,8 +127,8 @@ class MovingFrame:
                 and trigger_delay_s >= 0.0):
             raise ParameterError(f"frame {name!r}: trigger delay (={trigger_delay_s!r}) must "
                                  "be >= 0 s")
-        #: the delay from the sensor edge to the TRIGGER [s] (overview page, "Tracking
-        #: Process": the 1-2 sample delay "causes a gap in the position"; corrected at TRIGGER)
+        #: the delay from the sensor edge to the TRIGGER [s] (docs/spec/conveyor.md#5.2: the
+        #: 1-2 sample delay "causes a gap in the position"; corrected at TRIGGER)
         self.trigger_delay_s = float(trigger_delay_s)
         self.window = window if window is not None else Window.unlimited(self.nof)
         if self.window.nof != self.nof:
@@ -251,10 +250,10 @@ class MovingFrame:
     def source_values(self, age_s: float = 0.0) -> tuple[float, ...]:
         """The master source values ``age_s`` before the last update (what TRIGGER latches).
 
-        ``age_s`` > 0 is the page's correction term for the delay between the sensor edge and
-        the TRIGGER: each source is taken back along its motion, pos - vel*d + acc*d^2/2
-        (exact for a constant-acceleration source), so the latched value is where the item was
-        at the edge, not ``vel*d`` further on.
+        ``age_s`` > 0 is softMC's correction term for the delay between the sensor edge and the
+        TRIGGER (docs/spec/conveyor.md#5.2): each source is taken back along its motion,
+        pos - vel*d + acc*d^2/2 (exact for a constant-acceleration source), so the latched value
+        is where the item was at the edge, not ``vel*d`` further on.
         """
         if age_s == 0.0:
             return tuple(s.pos for s in self._require_master())

@@ -1,13 +1,13 @@
-"""Locations (position + unit quaternion) and the overview page's operators ⊕, ⊖ and ':'.
+"""Locations (position + unit quaternion) and softMC's operators ⊕, ⊖ and ':'.
 
-Source: seeds/conveyor-tracking.txt, "Theory of operation" -> "Tracking" and "Proof of
-concept".  Units: positions in mm, angles in deg.
+Spec: docs/spec/conveyor.md#2 (locations #2.1, operators #2.2, algebra #2.3) and #6.3 (the
+proof with base and tool).  Units: positions in mm, angles in deg.
 
 Quaternions are Hamilton quaternions written as tuples ``(w, x, y, z)``; a unit quaternion q
-rotates a vector v as q·v·q⁻¹.  ``q_axis_angle(axis, angle_deg)`` is the page's Q(angle, axis)
+rotates a vector v as q·v·q⁻¹.  ``q_axis_angle(axis, angle_deg)`` is softMC's Q(angle, axis)
 ("the quaternion defined by the rotation vector and rotation angle about it").
 
-The page's operators, implemented exactly::
+softMC's operators, implemented exactly::
 
     C = A ⊕ B:   C.pos = A.pos + B.pos      C.ori = A.ori * B.ori
     C = A ⊖ B:   C.pos = A.pos - B.pos      C.ori = B.ori⁻¹ * A.ori
@@ -17,10 +17,10 @@ and the compound ':' of two frames (rigid transforms, "base:Robot:tool")::
     C = A : B:   C.pos = A.pos + A.ori·B.pos·A.ori⁻¹      C.ori = A.ori * B.ori
 
 Algebra (used by the tracking scheme and tested): ⊕ is associative with the identity
-location I = (0, 1) as neutral element; ``A ⊕ (B ⊖ A) = B`` for every A, B (the step of the
-page's Q.E.D. ``MF(0) ⊕ [MF(t) ⊖ MF(0)] = MF(t)``); ``A ⊖ B = B⁻ ⊕ A`` with the ⊕-inverse
+location I = (0, 1) as neutral element; ``A ⊕ (B ⊖ A) = B`` for every A, B (the step of
+softMC's Q.E.D. ``MF(0) ⊕ [MF(t) ⊖ MF(0)] = MF(t)``); ``A ⊖ B = B⁻ ⊕ A`` with the ⊕-inverse
 ``B⁻ = (-B.pos, B.ori⁻¹)``.  Note that ``(A ⊕ B) ⊖ B`` is *not* A in general (its orientation
-is B.ori⁻¹·A.ori·B.ori): ⊕ multiplies on the right, ⊖ divides on the left, as the page writes.
+is B.ori⁻¹·A.ori·B.ori): ⊕ multiplies on the right, ⊖ divides on the left, as softMC writes.
 """
 
 from __future__ import annotations
@@ -94,7 +94,7 @@ def q_norm(q: Sequence[float]) -> float:
 
 
 def q_inv(q: Sequence[float]) -> Quat:
-    """The page's quaternion inverse q⁻¹ = conj(q)/|q|² (= conj(q) for a unit quaternion)."""
+    """The quaternion inverse q⁻¹ = conj(q)/|q|² (= conj(q) for a unit quaternion)."""
     n2 = q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]
     if n2 == 0.0:
         raise ParameterError("the zero quaternion has no inverse")
@@ -121,7 +121,7 @@ def q_rotate(q: Sequence[float], v: Sequence[float]) -> Vec3:
 
 
 def q_axis_angle(axis: Sequence[float], angle_deg: float) -> Quat:
-    """The page's Q(angle, axis): rotation by ``angle_deg`` [deg] about the unit ``axis``."""
+    """softMC's Q(angle, axis): rotation by ``angle_deg`` [deg] about the unit ``axis``."""
     h = math.radians(angle_deg) * 0.5
     s = math.sin(h)
     return (math.cos(h), axis[0] * s, axis[1] * s, axis[2] * s)
@@ -217,7 +217,7 @@ class Location:
         """Position [mm] and the rotation Q(angle_deg, axis) (axis normalised here)."""
         return cls(tuple(pos), q_axis_angle(v_unit(axis, "rotation axis"), angle_deg))
 
-    # -- the page's operators
+    # -- softMC's operators (docs/spec/conveyor.md#2.2)
     def oplus(self, other: "Location") -> "Location":
         """``self ⊕ other``: pos added, ori = self.ori·other.ori."""
         return _loc(v_add(self.pos, other.pos), q_mul(self.ori, other.ori))

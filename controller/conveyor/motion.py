@@ -3,7 +3,7 @@ model, its tests and scenarios.  Deliberately small: straight lines with a jerk-
 rest-to-rest profile, orientation by slerp on the same profile.  (The project's axis-motion
 package ``controller.motion`` is separate.)
 
-The virtual robot (overview page, "Theory of operation" -> "Tracking"): "the position of the
+The virtual robot (docs/spec/conveyor.md#6.1; softMC: "the position of the
 robot before the tracking started plus all additional robot movements entered afterwards".
 :class:`VirtualRobot` is that location, in world TCP coordinates (``base:Robot_virtual:tool``):
 
@@ -12,7 +12,8 @@ robot before the tracking started plus all additional robot movements entered af
 with B a base location and factors F_i: a motion's displacement scaled by its profile
 (``Δ.pos*s(t)``, ``Δ.ori^s(t)``, s from 0 to 1) or a constant (a shift, see :meth:`shift`).
 Motions are **superposed**: a motion adds its displacement on top of whatever else runs
-(item 10, "Blending/Superposition of motions will be not affected by syncing or de-syncing").
+(docs/spec/conveyor.md#8.1, "Blending/Superposition of motions will be not affected by
+syncing or de-syncing").
 A motion starts ("is initiated") when the previous one has ended (queued, the default) or at
 once (``superpose=True``).  At its start its displacement is fixed:
 
@@ -21,7 +22,7 @@ once (``superpose=True``).  At its start its displacement is fixed:
 - relative: Δ is the given displacement (superposed on the current motion).
 
 The conveyor model shifts V when a de-sync starts (:meth:`shift`: ``V ⊕ c``); a shift moves the
-current location and the ends of the running motions alike (items 7 and 8, see
+current location and the ends of the running motions alike (docs/spec/conveyor.md#8.1, see
 ``controller.conveyor.robot``).
 
 Units: mm, mm/s, mm/s^2, mm/s^3; deg, deg/s, deg/s^2, deg/s^3; s.  Time is counted in samples
@@ -124,7 +125,7 @@ class SCurve:
 class Motion:
     """A motion of the virtual robot.  ``target``: absolute (world TCP) or, with
     ``relative``, the displacement (pos added, ori multiplied on the right).
-    ``master_frame``: nodal MasterFrame (item 9.6), :data:`KEEP` for none."""
+    ``master_frame``: nodal MasterFrame (docs/spec/conveyor.md#9.6), :data:`KEEP` for none."""
 
     target: Location
     relative: bool = False

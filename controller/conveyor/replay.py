@@ -1,4 +1,5 @@
-"""Deterministic record and replay of encoder counts and triggers (not on the page).
+"""Deterministic record and replay of encoder counts and triggers (an extension of the softMC
+model, docs/spec/conveyor.md#1).
 
 A run of a :class:`controller.conveyor.cell.ConveyorCell` is a pure function of its inputs:
 the raw encoder counts per sample and the commands given between samples.  This module

@@ -1,7 +1,7 @@
 """The robot group on moving frames: MasterFrame, slave, IMFS, triggers, hand-off, virtual robot.
 
-Sources: seeds/conveyor-tracking.txt - "Tracking", "Tracking Process", Functional Changes 1-11,
-"Functionality Changes" (IMFS), "Theory of operation" -> "Tracking" and "Proof of concept".
+Spec: docs/spec/conveyor.md#6 (the tracking formula) to #11; item numbers below are the
+sections of conveyor.md (hand-off 9.1-9.6 as softMC numbers them).
 
 **The tracking formula.**  In world TCP coordinates (``base:Robot:tool``)::
 
@@ -9,14 +9,14 @@ Sources: seeds/conveyor-tracking.txt - "Tracking", "Tracking Process", Functiona
 
 V is the virtual robot (:class:`controller.conveyor.motion.VirtualRobot`: the robot before the
 tracking plus every motion entered afterwards; ``Robot_virtual = base⁻¹:V:tool⁻¹``), C_i the
-contribution of the i-th moving frame the robot follows (at most two: item 9.3).  Each
+contribution of the i-th moving frame the robot follows (at most two: #9.3).  Each
 contribution is produced by a core tracker (:class:`controller.conveyor.tracker.ConveyorTracker`,
 always in the core's absolute mode) whose master is the frame's motion since the item's zero::
 
-    D(t) = [MF(t) ⊖ MF(0)]        (slave = 5, the page's formula; MF(0) = <MF>.zero)
+    D(t) = [MF(t) ⊖ MF(0)]        (slave = 5, softMC's formula; MF(0) = <MF>.zero)
 
 so that, synchronised and with V standing still, ``setpoint = V ⊕ [MF(t) ⊖ MF(0)]`` exactly as
-the page writes, and ``MOVES <robot> <MF>.zero`` ends on ``<MF>.here`` (the Q.E.D., tested).
+softMC writes, and ``MOVES <robot> <MF>.zero`` ends on ``<MF>.here`` (the Q.E.D. of #6.3, tested).
 The tracker smooths the frame's contribution: it approaches D from where the contribution is
 (at rest, zero, when the robot is engaged) with the sync limits, follows it exactly when
 synchronised, and stops it on the path (line, or arc for rotary frames) when de-syncing.
@@ -25,8 +25,8 @@ The translation of D goes through the tracker's 3-D channel; its orientation
 (``Q(x, UpStream[1].ori⁻¹·v)`` for type 1; identity for types 0 and 2), so its angle goes
 through the tracker's 1-D rotation channel.
 
-``slave = 3`` (absolute; the old algorithm, Functional Change 1 keeps only 5 for the new
-one): the TCP goes onto ``<MF>.here`` in position *and* orientation ("once synchronization is
+``slave = 3`` (absolute; the old algorithm, softMC 4.2.8 keeps only 5 for the new one;
+#6.4): the TCP goes onto ``<MF>.here`` in position *and* orientation ("once synchronization is
 achieved, both positions are equal"; "both robot's position and orientation coordinates are
 taken into account").  The master is ``MF(t).pos - V(engage).pos`` for the position; the
 orientation offset ``E = V(engage).ori⁻¹·MF(0).ori`` is split into a twist about the angle
@@ -35,23 +35,23 @@ one-angle tracker with the same sync rotation limits (:meth:`FrameLink._orientat
 docs/spec/conveyor-extensions.md, "Absolute mode").  slave = 5 is unchanged: the robot turns
 with the frame, keeping its own orientation offset.
 
-**Virtual stopping position, items 6-8.**  When a contribution starts to de-sync, the core's
+**Virtual stopping position (#8.1).**  When a contribution starts to de-sync, the core's
 stop is deterministic and its end E (the frame's "virtual stopping position") is known at
 that moment.  We move E into the virtual robot at once (V ← V ⊕ E, a constant: V's location
 and the ends of its running motions shift by E) and count the contribution from E from then
 on, C = D̃ ⊖ E, which runs to zero as the stop ends.  The setpoint is unchanged by this
 bookkeeping, and:
 
-- item 6: no motion is stopped or cancelled by a de-sync;
-- item 7: a motion started while de-syncing ends where it would on a free robot (its
+- no motion is stopped or cancelled by a de-sync;
+- a motion started while de-syncing ends where it would on a free robot (its
   absolute target is computed after the shift, and C goes to zero);
-- item 8: an absolute target of a motion started while synchronised ends at
+- an absolute target of a motion started while synchronised ends at
   ``target ⊕ E``: the combination of the frame's virtual stopping position and the target;
-- item 10: superposition of motions is not touched by sync or de-sync.
+- superposition of motions is not touched by sync or de-sync.
 
 The robot's location after a de-sync is the new "robot before tracking" of the next engage.
 
-**Hand-off (item 9).**  A different MasterFrame makes the current frame's contribution
+**Hand-off (#9).**  A different MasterFrame makes the current frame's contribution
 de-sync (on its path) and a new contribution sync to the new frame, both active at once:
 ``setpoint = V ⊕ C_old(de-syncing) ⊕ C_new(syncing)``, superposed relative motions (old
 first; positions add, orientations multiply in that order).  The old frame is marked
@@ -59,7 +59,7 @@ de-syncing (``<MF>.desyncing_by``) until its stop ends: no robot can engage it b
 A third frame is rejected (9.3), the same frame again is ignored (9.4).  ``STOP``,
 ``slave = 0`` and ``MasterFrame = none`` are the same command here (9.5): every attached frame
 de-syncs and ``slave`` becomes 0 when the last stop has ended (9.1).  Only ``slave = 0``
-clears the trigger buffer: the page states it for that command alone ("As before, slave=0 will
+clears the trigger buffer: softMC states it for that command alone ("As before, slave=0 will
 delete all items"), and a program that leaves a frame with ``MasterFrame = none`` (or hands
 off) keeps its queue of items.  MasterFrame given with a motion (nodal,
 :meth:`RobotGroup.moves` ``master_frame=``) acts when that motion starts (9.6).
@@ -68,19 +68,19 @@ Order within one ``update``: nodal MasterFrame of the motions due now, then the 
 (window, tracker, a de-sync's stopping position moved into V), then the due motions start
 (their absolute targets fixed after that shift), then V and the setpoint.
 
-**Items and the window.**  A frame link tracks the oldest trigger entry of its frame.  The
+**Items and the window (#7).**  A frame link tracks the oldest trigger entry of its frame.  The
 tracker engages when the item is inside the window (before that the robot waits, IMFS 0) and:
 
 - the item leaves downstream while SYNCED: it is done (removed from the buffer); the link
   goes on with the next item of that frame: a new approach from the current state if that one
   is inside the window, else a de-sync and a wait ("Then, the robot starts tracking the next
   item on the frame");
-- the item leaves downstream before it was caught: error 30238 "Item missed" (item 11): the
+- the item leaves downstream before it was caught: error 30238 "Item missed": the
   frame de-syncs and detaches (like ``MasterFrame = none`` for that frame), the item is
   removed, motions go on as they are;
 - ``NEXTITEM``: the same as "done" for the current item, at once.
 
-**IMFS** (Functionality Changes): 0 not synchronised (not engaged, waiting for an item, or
+**IMFS** (#10): 0 not synchronised (not engaged, waiting for an item, or
 approaching); 1 synchronised; -1 de-syncing (the only frame, or the engaged frame waiting for
 its next item after a de-sync); -2 de-syncing from one frame while engaged to (catching or
 following) another.
@@ -897,7 +897,7 @@ class RobotGroup:
         return predict_catch(self, frame, item, horizon_s)
 
     def _limit_superimposed(self, m: Motion) -> None:
-        """PHASE2 (overview page, Moving Frame parameters): a motion that starts while frames
+        """PHASE2 (docs/spec/conveyor.md#11): a motion that starts while frames
         move the robot (links syncing, synced or de-syncing) gets the robot's maxima minus
         those frames' ``{Velocity|Acceleration|Jerk}Max{Trans|Rot}``, so that "increasing
         these values will effectively decrease the velocity of the superimposed robot

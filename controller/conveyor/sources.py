@@ -1,4 +1,4 @@
-"""Master sources of a moving frame (overview page, "Moving Frame": "The input position (master
+"""Master sources of a moving frame (docs/spec/conveyor.md#3.2; softMC: "The input position (master
 source) is usually taken as an external source (external encoder), simulated axis or even
 another moving frame position").
 

@@ -1,8 +1,8 @@
 """Per-item telemetry: time to sync, peak tracking error, oscillation count, caught/missed.
 
-Not on the page (issue 3, "Beyond the page").  One :class:`ItemRecord` per trigger entry a
-robot worked on, filled by the robot's frame link each sample (pure bookkeeping, no clock:
-sample indices; times = sample * T).
+Not part of the softMC model (docs/spec/conveyor.md#1; issue 3).  One :class:`ItemRecord`
+per trigger entry a robot worked on, filled by the robot's frame link each sample (pure
+bookkeeping, no clock: sample indices; times = sample * T).
 
 - ``entered_sample``: the first sample the robot's link saw the item inside the window (later
   than the item's real entry when the robot was not engaged to the frame then);
@@ -13,7 +13,7 @@ sample indices; times = sample * T).
   while approaching (SYNCING); ``peak_error_synced_mm`` the same while SYNCED (0 for the
   core's exact copy of the master; non-zero only with an estimator or numerical effects).
 - ``oscillations``: sign flips of the velocity error (dot product of consecutive errors,
-  the algorithm page's ``dv0*dv < 0``) during the approach, the first sample ignored.
+  softMC's ``dv0*dv < 0``, docs/spec/tracking.md#4.1) during the approach, the first sample ignored.
 - ``status``: PENDING (not reached yet), TRACKING, CAUGHT (synchronised), MISSED (left the
   window before it was caught: error 30238), SKIPPED (NEXTITEM / slave = 0 / a hand-off
   before it was caught), LOST (an error other than "item missed" ended the approach),

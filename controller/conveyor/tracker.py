@@ -1,9 +1,9 @@
 """The core tracker with the de-sync "on the path" of a rotary frame: along the arc.
 
-Sources: overview page Functional Change 5 ("The process will be 'on the path' ... reducing the
-initial velocity to zero along the same direction of the Moving Frame"), algorithm page
-"State: Stopping" (the stop runs on the curvature angle: desync.pos/vel/acc = alpha, alpha',
-alpha''; p = start*cos(alpha) + normal*sin(alpha) + center).
+Spec: docs/spec/conveyor.md#8.2 (softMC: "The process will be 'on the path' ... reducing the
+initial velocity to zero along the same direction of the Moving Frame"; in its algorithm
+the stop runs on the curvature angle: desync.pos/vel/acc = alpha, alpha', alpha'';
+p = start*cos(alpha) + normal*sin(alpha) + center).
 
 :class:`ConveyorTracker` is :class:`controller.tracking.Tracker` with one override: when it
 starts a de-sync from SYNCED and an arc is set (:meth:`ConveyorTracker.set_arc`), the stop
@@ -25,7 +25,7 @@ would make a velocity step.
 
 The arc is supplied through the core's public ``Tracker.desync_builder`` hook; the core
 records where the stop ends (``Tracker.desync_end``), which the conveyor model needs the
-moment the de-sync starts (the virtual stopping position of items 8 and 9).
+moment the de-sync starts (the virtual stopping position, docs/spec/conveyor.md#8.1 and #9).
 """
 
 from __future__ import annotations

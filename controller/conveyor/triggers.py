@@ -1,4 +1,4 @@
-"""The trigger ring buffer of a robot (overview page, Functional Changes items 3 and 4).
+"""The trigger ring buffer of a robot (docs/spec/conveyor.md#5.1).
 
 "The trigger values will be stored in a ring buffer ... with additional information indicating
 the relevant Moving Frame for each value entered.  The ring buffer is an element of robot."

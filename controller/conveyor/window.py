@@ -1,4 +1,4 @@
-"""The working window of a moving frame (overview page, "Window Declaration", "Tracking").
+"""The working window of a moving frame (docs/spec/conveyor.md#4).
 
 Per DOF a pair of limits relative to the trigger point, in frame units (mm for a linear DOF,
 deg for the rotary angle): ``upstream`` (the lower limit, the one closer to the trigger point)
@@ -16,7 +16,7 @@ item that goes back upstream out of the window is BEFORE again, tracking goes on
 Direction flag (``inverse``, given with the trigger): "An object might enter from the
 downstream limit": the limits are mirrored, c_i is compared as -c_i.
 
-The page also says "Moving direction is from upper to lower", which contradicts "the lower
+softMC also says "Moving direction is from upper to lower", which contradicts "the lower
 limit is closer to the trigger point" (an item moves away from its trigger, from the lower to
 the upper limit).  We follow the limits' definition: items move from upstream to downstream.
 """

@@ -6,7 +6,7 @@
 
 A geometry is immutable and pure: ``point(c, cd, cdd, dr_mm)`` maps the item's coordinates
 (displacement since its trigger, per DOF, in frame units: mm for linear DOFs, deg for the
-rotary angle) and their rates to :class:`FramePoint` (the page's ``<MF>.here``).
+rotary angle) and their rates to :class:`FramePoint` (``<MF>.here``, docs/spec/conveyor.md#3.3).
 """
 
 from .base import FramePoint

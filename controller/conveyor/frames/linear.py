@@ -1,4 +1,4 @@
-"""Type 0, the linear moving frame (overview page: "Moving Frame", "Window Declaration").
+"""Type 0, the linear moving frame (docs/spec/conveyor.md#3.3).
 
 Each of the NOF master sources moves the frame along its own direction vector; a source value
 m_i (source units: encoder counts, axis units, ...) is scaled to mm by ``scales[i]``

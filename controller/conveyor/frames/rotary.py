@@ -1,6 +1,6 @@
 """Type 1 (rotary) and type 2 (rotary decoupled) moving frames: an arc through three points.
 
-Source: overview page, "Theory of operation" -> "Trajectory".  NOF = 1: the single DOF is the
+Spec: docs/spec/conveyor.md#3.4 (softMC's rotary moving frame).  NOF = 1: the single DOF is the
 running arc angle x [deg].  The user gives UpStream[1] (a location, with master value
 UpMaster[1]), ArcPoint (a position) and DownStream[1] (a position, master value
 DownMaster[1]).  The three positions define:
@@ -12,28 +12,28 @@ DownMaster[1]).  The three positions define:
 - ``alpha`` - the arc angle [deg] from UpStream[1] to DownStream[1] (0 < alpha < 360);
 - ``axis`` v - the unit rotation axis of the arc (right-hand rule in the running direction).
 
-**The page contradicts itself** (notes item 11).  It writes
-``MF(t).pos = (R+dR)*(start*sin(x) + normal*cos(x)) + center`` and, on the same page,
+**softMC's description contradicts itself** (docs/spec/conveyor.md#3.4.2).  It writes
+``MF(t).pos = (R+dR)*(start*sin(x) + normal*cos(x)) + center`` and, in the same place,
 ``UpStream[1].pos = center + R*start`` and ``DownStream[1].pos = center +
 R*(start*sin(alpha) + normal*cos(alpha))``: with the first formula x = 0 is at
-``center + R*normal``, not at UpStream[1].  The algorithm page ("State: Stopping") writes the
-arc as ``start*cos(alpha) + normal*sin(alpha) + center``.  **Our reading** keeps the stated
-identity (UpStream[1] is the arc's start, x = 0) and the algorithm page's form::
+``center + R*normal``, not at UpStream[1].  softMC's tracking algorithm (its stopping state)
+writes the arc as ``start*cos(alpha) + normal*sin(alpha) + center``.  **Our reading** keeps
+the stated identity (UpStream[1] is the arc's start, x = 0) and the algorithm's form::
 
     MF(x).pos = center + (R + dR) * (start*cos(x) + normal*sin(x))      x in [0, alpha]
     UpStream[1].pos   = center + R*start                                (x = 0)
     DownStream[1].pos = center + R*(start*cos(alpha) + normal*sin(alpha))
 
-This is the overview page's formula with the names ``start`` and ``normal`` exchanged, so
+This is the published trajectory formula with the names ``start`` and ``normal`` exchanged, so
 its axis ``v = normal x start`` (in its names) is ``v = start x normal`` in ours: the axis
 about which the position turns with increasing x.  The orientation turns with the position
-(a rigid rotary table)::
+(a rigid rotary table; docs/spec/conveyor.md#3.4.3)::
 
     MF(x).ori = Q(x, v) * UpStream[1].ori  (type 1)          = Q(x + Delta, v)  when
-    UpStream[1].ori = Q(Delta, v), the page's equation for Delta
+    UpStream[1].ori = Q(Delta, v), softMC's equation for Delta
     MF(x).ori = UpStream[1].ori             (type 2, decoupled: does not turn with x)
 
-The page defines Delta by ``UpStream[1].ori = Q(Delta, v)``, which has a solution only if
+softMC defines Delta by ``UpStream[1].ori = Q(Delta, v)``, which has a solution only if
 UpStream[1].ori is a rotation about v.  ``Q(x, v)*UpStream[1].ori`` equals ``Q(x + Delta, v)``
 then and stays defined otherwise (the item keeps its tilt); :attr:`RotaryGeometry.delta_deg`
 is the twist angle of UpStream[1].ori about v (the exact Delta when it exists) and
@@ -43,8 +43,8 @@ Only the orientation of UpStream[1] matters; the orientations of ArcPoint and Do
 are ignored (they are positions here).  ``dR`` [mm] is the radius offset of the item's
 trigger.
 
-**The running angle** (the page's formula is missing after "The running angle x is computed
-according to:").  Our reading: the master source value m runs linearly with the angle, so that
+**The running angle** (docs/spec/conveyor.md#3.4.4; softMC's formula for it is missing
+from its description).  Our reading: the master source value m runs linearly with the angle, so that
 UpMaster[1] and DownMaster[1] are the values at the two ends::
 
     x(t) = alpha * (m(t) - trig) / (DownMaster[1] - UpMaster[1])        [deg]
@@ -149,7 +149,7 @@ class RotaryGeometry:
                     downstream: Sequence[float], *, up_master: float = 0.0,
                     down_master: float | None = None, deg_per_unit: float | None = None,
                     decoupled: bool = False) -> "RotaryGeometry":
-        """Build from the page's three points and UpMaster[1]/DownMaster[1] (or a scale)."""
+        """Build from softMC's three points and UpMaster[1]/DownMaster[1] (or a scale)."""
         arc = arc_from_points(upstream.pos, arc_point, downstream)
         if deg_per_unit is None:
             if down_master is None or down_master == up_master:
@@ -174,12 +174,13 @@ class RotaryGeometry:
 
     @property
     def delta_deg(self) -> float:
-        """The page's Delta: UpStream[1].ori = Q(Delta, v) (twist about v if not exact)."""
+        """softMC's Delta: UpStream[1].ori = Q(Delta, v) (twist about v if not exact;
+        docs/spec/conveyor.md#3.4.3)."""
         return q_twist_angle(self.upstream.ori, self.arc.axis)
 
     @property
     def ori_about_axis(self) -> bool:
-        """True when UpStream[1].ori is a rotation about v (the page's equation is solvable)."""
+        """True when UpStream[1].ori is a rotation about v (Delta exists)."""
         return q_angle_between(self.upstream.ori,
                                q_axis_angle(self.arc.axis, self.delta_deg)) < 1e-6
 
