@@ -4,10 +4,10 @@ Not a controller planner: it keeps *per-axis* limits, so in 3-D the vector norm 
 velocity/acceleration/jerk can reach sqrt(3) times the limit.  It is the measuring stick of
 ``benchmarks/tracking.py``: every planner's time to sync is divided by this one's.
 
-Source: notes/tracking-algorithm-notes.md, "How good the literal and the fixed readings are"
-("Time-optimal is Ruckig planned in the master's frame (relative coordinates, target 0,
-limits shifted by the master's velocity/acceleration)"; "Ruckig needs SI units";
-"Synchronization.TimeIfNecessary did not fail in 600 runs").
+Spec: docs/spec/tracking.md#3.10 (the time-optimal reference of the readings' measurements:
+Ruckig planned in the master's frame -- relative coordinates, target 0, limits shifted by
+the master's velocity/acceleration) and #6.2 (Ruckig needs SI-like magnitudes; with
+``Synchronization.TimeIfNecessary`` it did not fail in 600 runs).
 
 One channel (n = 3 translation in mm, or n = 1 rotation in deg), per sample (period T):
 

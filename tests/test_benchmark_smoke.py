@@ -74,7 +74,7 @@ def test_figures_are_sane(result):
         for tol in bench.TOLS:
             for ph in bench.CHECK_PHASES:
                 assert 0 <= f[f"viol_{tol:g}_{ph}_runs"] <= f["runs"]
-    # the softmc switch spike is there (take-the-middle, notes item 9)
+    # the softmc switch spike is there (take-the-middle, docs/spec/tracking.md#3.8)
     assert figs["softmc"]["switch_jerk_max"] > 1.0
     for target in result["targets"]:
         assert target["result"] in (None, True, False)

@@ -1,5 +1,5 @@
 """The softMC approach planner: each equation against hand-computed values, and the literal
-reading's documented behaviour (notes/tracking-algorithm-notes.md)."""
+reading's documented behaviour (docs/spec/tracking.md#3)."""
 
 from __future__ import annotations
 
@@ -179,7 +179,7 @@ def test_filter_factor_scales_thresholds():
 
 
 def test_initial_increments_from_state_avoid_the_first_sample_spike():
-    # notes item 6: a robot already moving at 300 mm/s with dp0 = 0 sees a first-sample
+    # docs/spec/tracking.md#3.9: a robot already moving at 300 mm/s with dp0 = 0 sees a first-sample
     # acceleration spike of several A; with dp0 = v0*T it does not.
     def first_acc(opts):
         p = planner(T=0.004, **opts)
@@ -205,19 +205,19 @@ def _metrics(opts, T, seconds=2.5, v=300.0, offset=(100.0, -50.0, 0.0),
 
 
 def test_literal_reading_key_bug_regression():
-    # notes item 8: read literally, the page's algorithm at 1 ms takes ~10x longer in this
+    # docs/spec/tracking.md#3.7: read literally, the published algorithm at 1 ms takes ~10x longer in this
     # 3-D case (the jerk clamp flips every cycle); with end-of-sample feedback it syncs fast.
     fixed, tr_fixed = _metrics(SoftMcOptions(), 0.001)
     literal, tr_lit = _metrics(SoftMcOptions.literal(), 0.001, seconds=3.0)
     assert fixed.synced and fixed.time_to_sync_s < 0.4
     assert literal.time_to_sync_s is None or literal.time_to_sync_s > 5 * fixed.time_to_sync_s
-    # and the literal acceleration hovers near 2*J*T instead of reaching A (notes item 8)
+    # and the literal acceleration hovers near 2*J*T instead of reaching A (#3.7)
     assert literal.peak["approach"]["acc"] < 0.7 * 2e4
 
 
 @pytest.mark.parametrize("T", [0.001, 0.004])
 def test_switch_spike_of_take_the_middle_is_documented(T):
-    # notes item 9: the "take the middle" switch makes a jerk spike of about g*A/T:
+    # docs/spec/tracking.md#3.8: the "take the middle" switch makes a jerk spike of about g*A/T:
     # 7-10 x J at 4 ms, 31-37 x J at 1 ms.  The approach itself stays within 1 %.
     m, _ = _metrics(SoftMcOptions(), T)
     spike = m.ratio["switch"]["jerk"]

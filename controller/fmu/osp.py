@@ -9,7 +9,7 @@ start".  The one-step connection delay shows at the start: in the first step the
 the conveyor's initial outputs (state at t_0), which is again the state at the step start.
 :func:`offline_reference` computes the same run with ``controller.tracking.Tracker`` directly.
 
-libcosimpy facts used here (see /work/shared/notes/fmu-notes.md): times are integer
+libcosimpy facts used here (docs/spec/tools.md#2): times are integer
 nanoseconds; variable names come back as bytes; an FMU path that does not exist or an FMI 3
 FMU crashes the process, so paths are checked before loading.
 """

@@ -454,8 +454,9 @@ class PickProgram:
     ``approach_mm`` (relative) -> grip: wait ``dwell_s`` synchronised (the pick) -> lift:
     up again, then ``NEXTITEM`` and ``MasterFrame = none`` and ``MOVES place`` -> place ->
     idle.  "Item missed" (30238) or the item leaving the window during the pick: the motions
-    go on as they are (item 11), then ``MOVES place`` once they are done; the reason is
-    kept in :attr:`unpicked` (so every caught item is either picked or has a reason).
+    go on as they are (docs/spec/conveyor.md#7), then ``MOVES place`` once they are done;
+    the reason is kept in :attr:`unpicked` (so every caught item is either picked or has a
+    reason).
     """
 
     def __init__(self, robot: RobotGroup, frame: MovingFrame, spec: ProgramSpec,

@@ -15,7 +15,7 @@ Keys (``*`` = required)::
       planner*: softmc               # softmc | optimal (controller.tracking.PLANNERS)
       mode: absolute                 # 3 | 5 | absolute | relative
       sync_trans: {vel: 2000, acc: 20000, jerk: 400000}   # Limits; missing (fields) start at
-      desync_trans: {...}            #   robot_max_trans (item 2, ConfigGroup), else 2000/2e4/4e5
+      desync_trans: {...}            #   robot_max_trans, else built-ins: docs/spec/tracking.md#2.5
       sync_rot: {vel: 360, acc: 3600, jerk: 72000}        # deg/s, deg/s^2, deg/s^3
       desync_rot: {...}              #   (robot_max_rot, else 360/3600/72000)
       robot_max_trans: {vel: .., acc: .., jerk: ..}       # optional caps (all three fields)
