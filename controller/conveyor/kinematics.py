@@ -1,6 +1,8 @@
-"""Kinematic compatibility of a robot and a moving frame (the overview page: "Robots must be
-of the same type as the world frame of the object in the tracking process (dimension and
-robot type)"; "It is impossible to track a different kinematics system").
+"""Kinematic compatibility of a robot and a moving frame (docs/spec/conveyor.md#3.1).
+
+softMC: "Robots must be of the same type as the world frame of the object in the tracking
+process (dimension and robot type)"; "It is impossible to track a different kinematics
+system".
 
 A :class:`Kinematics` names a robot type and the dimension of its world frame: the Cartesian
 coordinates its TCP has (2: X Y; 3: X Y Z; 4: X Y Z and a rotation about Z, e.g. a SCARA or
