@@ -135,13 +135,83 @@ def _nearest_key(text: str, line: int) -> str | None:
     return None
 
 
+#: the deepest nesting of mappings and lists a configuration may have (deeper ones would
+#: exhaust the recursion of the YAML composer; no cantrack file nests more than 6)
+MAX_DEPTH = 50
+#: the longest integer literal [digits] (Python refuses > 4300; no value here needs > 20)
+MAX_INT_DIGITS = 40
+
+
+def _construct_int(loader: _Loader, node: yaml.ScalarNode) -> int:
+    digits = sum(ch.isdigit() for ch in str(node.value))
+    if digits > MAX_INT_DIGITS:
+        raise yaml.constructor.ConstructorError(
+            None, None, f"an integer of {digits} digits is too long (at most "
+                        f"{MAX_INT_DIGITS})", node.start_mark)
+    return yaml.SafeLoader.construct_yaml_int(loader, node)
+
+
+_Loader.add_constructor("tag:yaml.org,2002:int", _construct_int)
+
+
+def _too_deep(text: str) -> int | None:
+    """The 1-based line where flow nesting (``[``/``{``) first goes deeper than
+    :data:`MAX_DEPTH`, outside quotes and comments; None if it never does."""
+    depth, line, quote = 0, 1, ""
+    comment = False
+    prev = "\n"
+    for ch in text:
+        if ch == "\n":
+            line += 1
+            comment = False
+            if quote == "'" or quote == '"':
+                pass
+        elif comment:
+            pass
+        elif quote:
+            if ch == quote:
+                quote = ""
+        elif ch in "'\"" and prev in " \t[{,:\n":
+            quote = ch
+        elif ch == "#" and prev in " \t\n":
+            comment = True
+        elif ch in "[{":
+            depth += 1
+            if depth > MAX_DEPTH:
+                return line
+        elif ch in "]}":
+            depth = max(0, depth - 1)
+        prev = ch
+    return None
+
+
 def load_marked(text: str, file: str) -> Any:
     """Parse ``text``; a syntax error becomes a ConfigError with the file, line and the
-    nearest key written before it."""
-    loader = _Loader(text)
+    nearest key written before it.  So do characters YAML does not allow (a NUL byte, other
+    control characters), nesting deeper than :data:`MAX_DEPTH` and integers longer than
+    :data:`MAX_INT_DIGITS` digits."""
+    deep = _too_deep(text)
+    if deep is not None:
+        raise ConfigError(f"lists/mappings nested more than {MAX_DEPTH} deep", file=file,
+                          line=deep, key=_nearest_key(text, deep))
+    try:
+        loader = _Loader(text)
+    except yaml.reader.ReaderError as exc:
+        line = text.count("\n", 0, exc.position) + 1
+        what = "a NUL byte" if exc.character in (0, "\0") else \
+            f"the character #x{exc.character if isinstance(exc.character, int) else ord(exc.character):04x}"
+        raise ConfigError(f"{what} is not allowed in a YAML file (is it a text file?)",
+                          file=file, line=line, key=_nearest_key(text, line)) from None
     loader.name = file
     try:
         return loader.get_single_data()
+    except yaml.reader.ReaderError as exc:
+        line = text.count("\n", 0, exc.position) + 1
+        raise ConfigError(f"YAML error: {exc.reason}", file=file, line=line,
+                          key=_nearest_key(text, line)) from None
+    except RecursionError:
+        raise ConfigError(f"lists/mappings nested too deep (at most {MAX_DEPTH})",
+                          file=file, line=1) from None
     except yaml.MarkedYAMLError as exc:
         mark = exc.problem_mark or exc.context_mark
         line = mark.line + 1 if mark is not None else None

@@ -190,7 +190,7 @@ def parse_bus_config(text: str, file: str, base_dir: Path | None = None, *,
     data = load_marked(text, file)
     if data is None:
         raise ConfigError("the file is empty", file=file)
-    top = Section(data, file)
+    top = Section(data, file, line=1)
     opt_s = top.section("options", None)
     options = _options(opt_s) if opt_s is not None else Options()
     master_s = top.section("master")
@@ -236,7 +236,7 @@ def parse_bus_config(text: str, file: str, base_dir: Path | None = None, *,
 
 def _options(s: Section) -> Options:
     o = Options(dcf_path=s.str("dcf_path", ""),
-                heartbeat_multiplier=s.float("heartbeat_multiplier", 3.0, above=0.0),
+                heartbeat_multiplier=s.float("heartbeat_multiplier", 3.0, min=1.0),
                 retry_factor=s.int("retry_factor", 3, min=0, max=100))
     s.finish()
     return o
@@ -253,7 +253,7 @@ def _master(s: Section, options: Options) -> MasterConfig:
         heartbeat_producer_ms=s.int("heartbeat_producer", 0, min=0, max=0xFFFF),
         heartbeat_consumer=s.bool("heartbeat_consumer", True),
         heartbeat_multiplier=s.float("heartbeat_multiplier", options.heartbeat_multiplier,
-                                     above=0.0),
+                                     min=1.0),
         boot_time_ms=s.int("boot_time", 0, min=0, max=600_000),
         start=s.bool("start", True),
         start_nodes=s.bool("start_nodes", True),
@@ -308,7 +308,7 @@ def _slave(name: str, s: Section, base_dir: Path,
     slave = SlaveConfig(
         name=name, dcf=dcf, node_id=node_id, heartbeat_producer_ms=hb,
         heartbeat_consumer=s.bool("heartbeat_consumer", False),
-        heartbeat_multiplier=s.float("heartbeat_multiplier", None, above=0.0),
+        heartbeat_multiplier=s.float("heartbeat_multiplier", None, min=1.0),
         revision_number=s.int("revision_number", None, min=0, max=0xFFFFFFFF),
         serial_number=s.int("serial_number", None, min=0, max=0xFFFFFFFF),
         boot=s.bool("boot", True), mandatory=s.bool("mandatory", False),

@@ -398,7 +398,7 @@ def _tracker(s: Section, sample_time_s: float) -> TrackerParams:
             raw = s.raw(key)
             names = {"absolute": Mode.ABSOLUTE, "relative": Mode.RELATIVE, 3: Mode.ABSOLUTE,
                      5: Mode.RELATIVE}
-            if isinstance(raw, bool) or raw not in names:
+            if isinstance(raw, bool) or not isinstance(raw, (str, int)) or raw not in names:
                 raise s.error(key, f"(={raw!r}) must be absolute, relative, 3 or 5")
             changes[key] = names[raw]
         elif key in ("sync_trans", "desync_trans", "sync_rot", "desync_rot",

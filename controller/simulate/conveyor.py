@@ -196,7 +196,7 @@ def _frame(node) -> FrameSpec:
     name = node.string("name", "cnv")
     t = node.raw("type", "linear")
     key = t.lower() if isinstance(t, str) else t
-    if isinstance(t, bool) or key not in _TYPES:
+    if isinstance(t, bool) or not isinstance(key, (str, int)) or key not in _TYPES:
         raise node.error("type", f"must be linear | rotary | rotary_decoupled | 0 | 1 | 2, "
                                  f"got {t!r}")
     ftype = _TYPES[key]

@@ -138,6 +138,10 @@ def _range_text(lo: float | None, hi: float | None, lo_open: bool, hi_open: bool
     return f"in {'(' if lo_open else '['}{lo:g}...{hi:g}{')' if hi_open else ']'}"
 
 
+#: the largest |coordinate| of a position in a scenario [mm] (1 km; also for angles [deg])
+MAX_POSITION_MM = 1e6
+
+
 class _Node:
     """A mapping under validation: its values, the lines of its keys and its dotted path."""
 
@@ -145,8 +149,8 @@ class _Node:
         self.ctx = ctx
         self.path = path
         if not isinstance(value, dict):
-            raise ctx.error(f"must be a mapping of keys, got {_describe(value)}", line,
-                            path or None)
+            raise ctx.error(f"must be a mapping of keys, got {_describe(value)}",
+                            line if line is not None or path else 1, path or None)
         self.m = value
         #: the line of the section's key (or list item), else where the mapping starts
         self.line = line if line is not None else getattr(value, "line", None)
@@ -176,10 +180,18 @@ class _Node:
                 f"unknown key in {where}{hint} (valid keys: {', '.join(allowed)})",
                 key_lines.get(k, self.line), self.key(str(k)))
 
+    def _from_file(self) -> bool:
+        return hasattr(self.m, "key_lines")
+
     def has(self, key: str) -> bool:
-        return key in self.m and self.m[key] is not None
+        # a file's `key:` left empty (null) is there, to be refused by raw(); in a mapping
+        # given from Python, None means "not given"
+        return key in self.m and (self.m[key] is not None or self._from_file())
 
     def raw(self, key: str, default: Any = _MISSING) -> Any:
+        if key in self.m and self.m[key] is None and self._from_file():
+            # (not the default: a value the user left empty is a mistake to name)
+            raise self.error(key, "has no value (empty or null): give one or delete the key")
         if key in self.m and self.m[key] is not None:
             return self.m[key]
         if default is _MISSING:
@@ -193,6 +205,8 @@ class _Node:
         value = self.raw(key, default)
         if value is default and default is not _MISSING:
             return value
+        if unit in ("mm", "deg") and lo is None and hi is None:
+            lo, hi = -MAX_POSITION_MM, MAX_POSITION_MM  # (a position or an angle)
         return _check_number(value, lambda msg: self.error(key, msg), lo=lo, hi=hi,
                              lo_open=lo_open, hi_open=hi_open, unit=unit, integer=integer)
 
@@ -219,7 +233,11 @@ class _Node:
         if not isinstance(value, list) or len(value) != 3:
             raise self.error(key, f"must be a list of 3 numbers [x, y, z]{_unit(unit)}, "
                                   f"got {_describe(value)}")
-        return tuple(_check_number(v, lambda msg, i=i: self.error(key, f"item {i}: {msg}"))
+        # a position is within MAX_POSITION_MM of the origin (1e300 would overflow the
+        # planners' arithmetic; no cell is larger than a kilometre)
+        bound = MAX_POSITION_MM if unit == "mm" else None
+        return tuple(_check_number(v, lambda msg, i=i: self.error(key, f"item {i}: {msg}"),
+                                   lo=None if bound is None else -bound, hi=bound, unit=unit)
                      for i, v in enumerate(value))
 
     def section(self, key: str, required: bool = False) -> "_Node | None":
@@ -258,10 +276,10 @@ def _check_number(value: Any, fail, *, lo=None, hi=None, lo_open=False, hi_open=
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         kind = "an integer" if integer else "a number"
         raise fail(f"must be {kind}{_unit(unit)}, got {_describe(value)}")
-    if integer and int(value) != value:
-        raise fail(f"must be an integer, got {value!r}")
     if not math.isfinite(value):
         raise fail(f"must be a finite number, got {value!r}")
+    if integer and int(value) != value:
+        raise fail(f"must be an integer, got {value!r}")
     if (lo is not None and (value < lo or (lo_open and value == lo))) or \
             (hi is not None and (value > hi or (hi_open and value == hi))):
         raise fail(f"value {value!r} is out of range: must be "
@@ -488,7 +506,7 @@ def _robot(node: _Node) -> MotionState:
 
 def _unit_vector(node: _Node, key: str, default: Any) -> tuple[float, float, float]:
     v = node.vector(key, default)
-    n = math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
+    n = math.hypot(v[0], v[1], v[2])  # (no overflow for components of 1e300)
     if n == 0.0:
         raise node.error(key, "must not be the zero vector")
     return v if n == 1.0 else (v[0] / n, v[1] / n, v[2] / n)
@@ -547,7 +565,7 @@ _CSV_ALIASES = {"t": "time_s", "time": "time_s", "x_mm": "x", "y_mm": "y", "z_mm
 def _csv_master(node: _Node) -> CsvMaster:
     node.check_keys(("csv", "window"))
     name = node.string("csv")
-    window = node.number("window", 16, lo=3, integer=True)
+    window = node.number("window", 16, lo=3, hi=10000, integer=True)
     path = Path(name)
     if not path.is_absolute():
         path = node.ctx.base_dir / path

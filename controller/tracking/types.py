@@ -162,6 +162,10 @@ DEFAULT_TRANS = Limits(2000.0, 20000.0, 400000.0)
 DEFAULT_ROT = Limits(360.0, 3600.0, 72000.0)
 
 
+#: the largest FilterFactor / DampingFactor accepted
+MAX_FACTOR = 1000.0
+
+
 @dataclass(frozen=True, slots=True)
 class TrackerParams:
     """Everything that configures one tracker (one robot group on one moving frame).
@@ -227,10 +231,14 @@ class TrackerParams:
             raise ParameterError(f"mode (={self.mode!r}) must be 3 (absolute) or 5 (relative)")
         if self.mode == Mode.OFF:
             raise ParameterError("mode (=0) must be 3 (absolute) or 5 (relative)")
-        if not (self.filter_factor > 0 and math.isfinite(self.filter_factor)):
-            raise ParameterError(f"filter_factor (={self.filter_factor!r}) must be > 0")
-        if not (self.damping_factor > 0 and math.isfinite(self.damping_factor)):
-            raise ParameterError(f"damping_factor (={self.damping_factor!r}) must be > 0")
+        # (<= MAX_FACTOR: beyond it the softmc thresholds and time-to-reach overflow to
+        #  inf/NaN; DampingFactor 1..10 is the useful range)
+        if not (0 < self.filter_factor <= MAX_FACTOR):
+            raise ParameterError(f"filter_factor (={self.filter_factor!r}) must be > 0 "
+                                 f"and <= {MAX_FACTOR:g}")
+        if not (0 < self.damping_factor <= MAX_FACTOR):
+            raise ParameterError(f"damping_factor (={self.damping_factor!r}) must be > 0 "
+                                 f"and <= {MAX_FACTOR:g}")
         if int(self.max_flops) != self.max_flops or self.max_flops < 1:
             raise ParameterError(f"max_flops (={self.max_flops!r}) must be an integer >= 1")
         if not self.max_flops_time_s > 0:

@@ -27,6 +27,8 @@ Device units (counts) for the drives, mm and s for the belt.  Every key is optio
 
 from __future__ import annotations
 
+import math
+
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
@@ -79,6 +81,11 @@ def parse_simulation(s: Section, cfg: BusConfig) -> SimulationConfig:
     return SimulationConfig(boot, devices)
 
 
+#: the fastest simulated belt [mm/s] (10 m/s) and the last time point of its profile [s]
+MAX_BELT_SPEED = 10_000.0
+MAX_PROFILE_S = 1e9
+
+
 def _encoder(s: Section, cfg: BusConfig) -> EncoderParams:
     conv = cfg.tracking.conveyor if cfg.tracking is not None else None
     profile = []
@@ -87,6 +94,12 @@ def _encoder(s: Section, cfg: BusConfig) -> EncoderParams:
                 isinstance(v, (int, float)) and not isinstance(v, bool) for v in item)):
             from ...errors import ConfigError
             raise ConfigError("must be a pair [t_s, v_mm_s]", file=s.file, line=line, key=path)
+        if not (math.isfinite(item[0]) and 0.0 <= item[0] <= MAX_PROFILE_S
+                and math.isfinite(item[1]) and abs(item[1]) <= MAX_BELT_SPEED):
+            from ...errors import ConfigError
+            raise ConfigError(f"(={list(item)}) must be [t_s, v_mm_s] with 0 <= t_s <= "
+                              f"{MAX_PROFILE_S:g} s and |v_mm_s| <= {MAX_BELT_SPEED:g} mm/s",
+                              file=s.file, line=line, key=path)
         profile.append((float(item[0]), float(item[1])))
     times = [p[0] for p in profile]
     if times != sorted(times) or len(set(times)) != len(times):
