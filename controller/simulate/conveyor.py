@@ -81,7 +81,8 @@ from ..conveyor.sources import quantise_counts
 from ..conveyor.telemetry import ItemRecord
 from ..errors import ConfigError, ParameterError
 from ..tracking import Imfs, Mode, TrackerParams
-from .scenario import SampledRun
+from .reading import (MAX_SAMPLES, Node, SampledRun, check_number, segment_master,
+                      tracker_params, unit_vector)
 
 __all__ = ["ConveyorScenario", "ConveyorResult", "PickProgram", "parse_conveyor",
            "run_conveyor", "write_conveyor_trace", "write_logs"]
@@ -169,8 +170,6 @@ class ConveyorScenario(SampledRun):
 
 # -- parsing (uses the tracking scenarios' validation helpers) ----------------------------
 def _location(node, key: str, default: Any = None) -> Location | None:
-    from .scenario import _Node
-
     if not node.has(key):
         if default is None and key in ("start",):
             node.raw(key)
@@ -178,7 +177,7 @@ def _location(node, key: str, default: Any = None) -> Location | None:
     value = node.raw(key)
     if isinstance(value, list):
         return Location(node.vector(key, unit="mm"))
-    sub = _Node(node.ctx, value, node.key(key), node.line_of(key))
+    sub = Node(node.ctx, value, node.key(key), node.line_of(key))
     sub.check_keys(("position", "axis", "angle_deg"))
     pos = sub.vector("position", unit="mm")
     angle = sub.number("angle_deg", 0.0, unit="deg")
@@ -224,10 +223,8 @@ def _frame(node) -> FrameSpec:
         scale = node.number("scale_mm_per_unit", 1.0, unit="mm per master unit")
         if scale == 0.0:
             raise node.error("scale_mm_per_unit", "must not be 0")
-        from .scenario import _unit_vector
-
         return FrameSpec(name, ftype, window, limits, _location(node, "origin", Location()),
-                         _unit_vector(node, "direction", (1.0, 0.0, 0.0)), scale)
+                         unit_vector(node, "direction", (1.0, 0.0, 0.0)), scale)
     for k in ("origin", "direction", "scale_mm_per_unit"):
         if node.has(k):
             raise node.error(k, "is a linear frame key; a rotary frame uses upstream, "
@@ -253,8 +250,6 @@ def _frame(node) -> FrameSpec:
 
 
 def _master(node) -> MasterSpec:
-    from .scenario import _segment_master
-
     node.check_keys(("start", "speed", "profile", "encoder", "log"))
     kinds = [k for k in ("speed", "profile", "log") if node.has(k)]
     if len(kinds) != 1:
@@ -287,14 +282,12 @@ def _master(node) -> MasterSpec:
         return MasterSpec(start, 0.0, None, enc, counts, path)
     if node.has("profile"):
         prof = node.section("profile")
-        return MasterSpec(start, 0.0, _segment_master(prof), enc)
+        return MasterSpec(start, 0.0, segment_master(prof), enc)
     return MasterSpec(start, node.number("speed", unit="master units/s"), None, enc)
 
 
 def _items(node, duration_s: float, n_samples: int, frame: FrameSpec,
            robot: str) -> tuple[ItemSpec, ...]:
-    from .scenario import _check_number
-
     node.check_keys(("trigger_times", "radius_offsets_mm", "csv", "log"))
     kinds = [k for k in ("trigger_times", "csv", "log") if node.has(k)]
     if len(kinds) != 1:
@@ -303,7 +296,7 @@ def _items(node, duration_s: float, n_samples: int, frame: FrameSpec,
     if node.has("trigger_times"):
         times = []
         for v, line, path in node.items("trigger_times"):
-            times.append(_check_number(v, lambda m, line=line, path=path:
+            times.append(check_number(v, lambda m, line=line, path=path:
                                        node.ctx.error(m, line, path), lo=0.0, hi=duration_s,
                                        hi_open=True, unit="s (the scenario's duration)"))
         drs = [0.0] * len(times)
@@ -312,7 +305,7 @@ def _items(node, duration_s: float, n_samples: int, frame: FrameSpec,
             if len(items) != len(times):
                 raise node.error("radius_offsets_mm", f"must give one value per trigger time "
                                                       f"({len(times)}), got {len(items)}")
-            drs = [_check_number(v, lambda m, line=line, path=path:
+            drs = [check_number(v, lambda m, line=line, path=path:
                                  node.ctx.error(m, line, path), unit="mm")
                    for v, line, path in items]
         if times != sorted(times):
@@ -411,11 +404,9 @@ def _program(node) -> ProgramSpec:
 
 def parse_conveyor(root, ctx, source: Path | None) -> ConveyorScenario:
     """Validate a conveyor scenario (``root``: the scenario's top-level node)."""
-    from .scenario import MAX_SAMPLES, _tracker_params
-
     root.check_keys(("name", "duration_s", "tracker", "conveyor"))
     name = root.string("name", "")
-    params = _tracker_params(root.section("tracker", required=True))
+    params = tracker_params(root.section("tracker", required=True))
     duration = root.number("duration_s", lo=0.0, lo_open=True, unit="s")
     n = round(duration / params.sample_time_s)
     if n < 1 or n > MAX_SAMPLES:
@@ -801,3 +792,12 @@ def write_logs(result: ConveyorResult, prefix: str | Path) -> tuple[Path, Path |
 
 def type_name(t: int) -> str:
     return TYPE_NAMES[t]
+
+
+# -- public readers and helpers (used by controller.simulate.cell) ---------------------------
+read_location = _location
+read_frame = _frame
+read_master = _master
+read_robot = _robot
+read_program = _program
+master_fn = _master_fn

@@ -30,7 +30,8 @@ import numpy as np
 from ..tracking import MasterEstimator, MotionState
 
 if TYPE_CHECKING:
-    from .scenario import CsvMaster, Scenario, SegmentMaster
+    from .reading import CsvMaster, SegmentMaster
+    from .scenario import Scenario
 
 __all__ = ["SegmentError", "SegmentProfile", "build_profile", "speed_change_phases",
            "master_states"]
@@ -209,7 +210,7 @@ def master_states(scenario: "Scenario") -> tuple[list[MotionState], list[MotionS
 
     Without an ``estimator`` section both lists are the same objects.
     """
-    from .scenario import CsvMaster
+    from .reading import CsvMaster
 
     T = scenario.params.sample_time_s
     n = scenario.n_samples

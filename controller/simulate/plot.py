@@ -68,6 +68,10 @@ def plot_result(result: SimulationResult, path: str | Path, *, dpi: int = 110) -
 
     if isinstance(result, ConveyorResult):
         return plot_conveyor_result(result, path, dpi=dpi)
+    from .cell import CellResult, plot_cell_result
+
+    if isinstance(result, CellResult):
+        return plot_cell_result(result, path, dpi=dpi)
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
     from matplotlib.patches import Patch

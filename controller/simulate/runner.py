@@ -238,15 +238,19 @@ def run_scenario(source, *, base_dir: str | Path | None = None):
     """Load (a path to a YAML file, or a mapping with the same keys) and run a scenario.
 
     Returns a :class:`SimulationResult`, or for a conveyor scenario (top-level ``conveyor``
-    key) a :class:`controller.simulate.conveyor.ConveyorResult`.
+    key) a :class:`controller.simulate.conveyor.ConveyorResult`, for a cell scenario (``cell``)
+    a :class:`controller.simulate.cell.CellResult`.
     Raises :class:`controller.errors.ConfigError` for an invalid scenario.
     """
+    from .cell import CellScenario, run_cell
     from .conveyor import ConveyorScenario, run_conveyor
 
-    if isinstance(source, (Scenario, ConveyorScenario)):
+    if isinstance(source, (Scenario, ConveyorScenario, CellScenario)):
         scenario = source
     else:
         scenario = load_scenario(source, base_dir=base_dir)
     if isinstance(scenario, ConveyorScenario):
         return run_conveyor(scenario)
+    if isinstance(scenario, CellScenario):
+        return run_cell(scenario)
     return simulate(scenario)

@@ -69,6 +69,10 @@ def format_summary(result: SimulationResult) -> str:
 
     if isinstance(result, ConveyorResult):
         return format_conveyor_summary(result)
+    from .cell import CellResult, format_cell_summary
+
+    if isinstance(result, CellResult):
+        return format_cell_summary(result)
     r = result
     sc = r.scenario
     p = r.params

@@ -57,6 +57,10 @@ def write_trace(result: SimulationResult, path: str | Path) -> Path:
 
     if isinstance(result, ConveyorResult):
         return write_conveyor_trace(result, path)
+    from .cell import CellResult, write_cell_trace
+
+    if isinstance(result, CellResult):
+        return write_cell_trace(result, path)
     path = Path(path)
     r = result
     state_names = {int(s): s.name for s in TrackState}

@@ -1,0 +1,678 @@
+"""Cell scenarios of ``cantrack simulate``: several moving frames, several robots, item
+sensors and timed MasterFrame changes (hand-off between belts, two robots sharing a belt each
+with its own frame object, 2-DOF frames).
+
+A scenario with a top-level ``cell:`` key.  Units: mm, mm/s, deg, s; master values in master
+units.  ``*`` = required::
+
+    name: "hand-off"
+    duration_s*: 6.0
+    tracker*: {...}                  # as in conveyor scenarios (TrackerParams fields)
+    cell*:
+      masters*:                      # named master axes: the keys of conveyor.master
+        belt_a: {speed: 300}         #   (speed | profile, optional encoder; no log)
+        belt_b: {start: 0, speed: 200, encoder: {counts_per_unit: 100}}
+      frames*:                       # a list: the keys of conveyor.frame, plus
+        - name: a
+          masters*: [belt_a]         # one master per DOF (NOF = the list's length)
+          directions: [[1, 0, 0], [0, 1, 0]]   # linear, NOF > 1: one direction per DOF
+          scales_mm_per_unit: [1, 1]           #   and one scale per DOF (default 1)
+          window: {upstream: [0, 0], downstream: [500, 300]}   # NOF > 1: one limit per DOF
+          world: {type: scara, dimension: 4}   # optional: the frame's kinematics system
+      robots*:                       # a list: the keys of conveyor.robot, plus
+        - name: r1
+          kinematics: {type: general, dimension: 6}
+          track_types: {a: [1, 2]}   # per frame: the item types tracked (default: all)
+          program: {frame: a, approach_mm: 50, dwell_s: 0.1, place: [..], predict: true}
+          master_frame:              # or: timed MasterFrame changes (no program)
+            - {time_s: 0.2, frame: a}
+            - {time_s: 3.0, frame: b}          # hand-off from a to b
+            - {time_s: 5.0, frame: none}       # de-sync from every frame
+      sensors*:                      # item sensors: a list of
+        - frame*: a
+          robots: [r1]               # whose buffers get the TRIGGER (default: every robot)
+          trigger_times*: [0.1, 0.9]
+          types: [1, 2]              # optional: the item type per trigger (default 0)
+          radius_offsets_mm: [0, 0]  # optional (rotary frames)
+
+Each frame gets its own source object of its master (two frames on one belt read the same
+axis: same values, own estimator).  A sensor's TRIGGER latches the master values of its frame
+at the sensor time (exactly, or the encoder count then).  Per sample: sensors, MasterFrame
+changes due, programs, then one step of the cell (frames, then robots).
+
+Errors are :class:`controller.errors.ConfigError` naming file, line and key.
+"""
+
+from __future__ import annotations
+
+import copy
+import csv
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..conveyor import (ConveyorCell, EncoderSource, Event, Kinematics, MovingFrame, RobotGroup, SimulatedAxis, TriggerBufferFull, Window)
+from ..conveyor.frame import LINEAR
+from ..conveyor.sources import quantise_counts
+from ..conveyor.telemetry import ItemRecord
+from ..errors import CantrackError, ParameterError
+from ..tracking import Mode, TrackerParams, unwrap_counts
+from .conveyor import (FrameSpec, MasterSpec, PickProgram, ProgramSpec, RobotSpec,
+                       master_fn, read_frame, read_master, read_program, read_robot)
+from .reading import MAX_SAMPLES, Node, SampledRun, check_number, tracker_params
+
+__all__ = ["CellScenario", "CellResult", "parse_cell", "run_cell", "write_cell_trace",
+           "format_cell_summary", "plot_cell_result"]
+
+
+# -- the scenario ------------------------------------------------------------------------
+@dataclass(frozen=True)
+class CellFrameSpec:
+    spec: FrameSpec                      #: the frame's geometry (first DOF for NOF > 1)
+    masters: tuple[str, ...]
+    directions: tuple[tuple[float, float, float], ...]
+    scales: tuple[float, ...]
+    window: Window
+    world: Kinematics | None = None
+
+    @property
+    def name(self) -> str:
+        return self.spec.name
+
+    @property
+    def nof(self) -> int:
+        return len(self.masters)
+
+
+@dataclass(frozen=True)
+class FrameChange:
+    time_s: float
+    frame: str | None                    #: None: MasterFrame = none
+
+
+@dataclass(frozen=True)
+class CellRobotSpec:
+    robot: RobotSpec
+    kinematics: Kinematics = Kinematics()
+    track_types: tuple[tuple[str, frozenset[int]], ...] = ()
+    program_frame: str | None = None
+    program: ProgramSpec | None = None
+    changes: tuple[FrameChange, ...] = ()
+
+    @property
+    def name(self) -> str:
+        return self.robot.name
+
+
+@dataclass(frozen=True)
+class SensorSpec:
+    frame: str
+    robots: tuple[str, ...]
+    times: tuple[float, ...]
+    types: tuple[int, ...]
+    dr_mm: tuple[float, ...]
+
+
+@dataclass(frozen=True)
+class CellScenario(SampledRun):
+    params: TrackerParams
+    duration_s: float
+    masters: dict[str, MasterSpec]
+    frames: tuple[CellFrameSpec, ...]
+    robots: tuple[CellRobotSpec, ...]
+    sensors: tuple[SensorSpec, ...]
+    name: str = ""
+    source: Path | None = None
+
+
+def _sub(node: Node, drop: tuple[str, ...]) -> Node:
+    """The node without the keys ``drop`` (read here), for a reader of the rest."""
+    m = copy.copy(node.m)
+    for k in drop:
+        m.pop(k, None)
+    return Node(node.ctx, m, node.path, node.line)
+
+
+def _names(node: Node, key: str, known: dict | list, what: str) -> tuple[str, ...]:
+    out = []
+    for v, line, path in node.items(key):
+        if not isinstance(v, str) or v not in known:
+            raise node.ctx.error(f"unknown {what} {v!r} (known: "
+                                 f"{', '.join(map(repr, known))})", line, path)
+        out.append(v)
+    return tuple(out)
+
+
+def _kinematics(node: Node | None) -> Kinematics | None:
+    if node is None:
+        return None
+    node.check_keys(("type", "dimension"))
+    try:
+        return Kinematics(node.string("type", "general"),
+                          node.number("dimension", 6, integer=True))
+    except ParameterError as exc:
+        raise node.error("dimension" if "dimension" in str(exc) else "type", str(exc)) from None
+
+
+def _cell_frame(node: Node, masters: dict[str, MasterSpec]) -> CellFrameSpec:
+    extra = ("masters", "directions", "scales_mm_per_unit", "world")
+    names = _names(node, "masters", masters, "master")
+    if not names:
+        raise node.error("masters", "must name at least one master")
+    world = _kinematics(node.section("world"))
+    nof = len(names)
+    if nof == 1:
+        for k in ("directions", "scales_mm_per_unit"):
+            if node.has(k):
+                raise node.error(k, "is for frames with several masters; a 1-DOF frame uses "
+                                    "direction and scale_mm_per_unit")
+        spec = read_frame(_sub(node, extra))
+        return CellFrameSpec(spec, names, (spec.direction,), (spec.scale_mm_per_unit,),
+                             spec.window, world)
+    # several DOFs: a linear frame, one direction and scale per DOF
+    for k in ("direction", "scale_mm_per_unit"):
+        if node.has(k):
+            raise node.error(k, f"a frame with {nof} masters gives directions and "
+                                "scales_mm_per_unit (one per DOF)")
+    if node.raw("type", "linear") not in ("linear", 0):
+        raise node.error("type", f"a frame with {nof} masters must be linear")
+    dirs = []
+    for v, line, path in node.items("directions"):
+        d = Node(node.ctx, {"d": v}, path, line).vector("d", unit="")
+        n = math.sqrt(sum(x * x for x in d))
+        if n == 0.0:
+            raise node.ctx.error("must not be the zero vector", line, path)
+        dirs.append(tuple(x / n for x in d))
+    if len(dirs) != nof:
+        raise node.error("directions", f"must give {nof} directions (one per master), got "
+                                       f"{len(dirs)}")
+    scales = [1.0] * nof
+    if node.has("scales_mm_per_unit"):
+        items = node.items("scales_mm_per_unit")
+        if len(items) != nof:
+            raise node.error("scales_mm_per_unit", f"must give {nof} values, got {len(items)}")
+        scales = [check_number(v, lambda m, line=line, path=path: node.ctx.error(m, line, path),
+                               unit="mm per master unit") for v, line, path in items]
+    w = node.section("window", required=True)
+    w.check_keys(("upstream", "downstream"))
+    lims = []
+    for key in ("upstream", "downstream"):
+        items = w.items(key)
+        if len(items) != nof:
+            raise w.error(key, f"must give {nof} limits (one per DOF) [mm], got {len(items)}")
+        lims.append(tuple(check_number(v, lambda m, line=line, path=path:
+                                       node.ctx.error(m, line, path), unit="mm")
+                          for v, line, path in items))
+    try:
+        window = Window(lims[0], lims[1])
+    except ParameterError as exc:
+        raise w.error("downstream", str(exc)) from None
+    m1 = copy.copy(node.m)
+    for k in extra + ("type",):
+        m1.pop(k, None)
+    m1["window"] = {"upstream": lims[0][0], "downstream": lims[1][0]}
+    m1["direction"] = list(dirs[0])
+    spec = read_frame(Node(node.ctx, m1, node.path, node.line))
+    return CellFrameSpec(spec, names, tuple(dirs), tuple(scales), window, world)
+
+
+def _changes(node: Node, frames: dict[str, CellFrameSpec], duration: float
+             ) -> tuple[FrameChange, ...]:
+    out = []
+    prev = -math.inf
+    for v, line, path in node.items("master_frame"):
+        c = Node(node.ctx, v, path, line)
+        c.check_keys(("time_s", "frame"))
+        t = c.number("time_s", lo=0.0, hi=duration, hi_open=True, unit="s")
+        if t < prev:
+            raise c.error("time_s", "times must be in increasing order")
+        prev = t
+        name = c.string("frame")
+        if name != "none" and name not in frames:
+            raise c.error("frame", f"unknown frame {name!r} (known: "
+                                   f"{', '.join(map(repr, frames))}, or none)")
+        out.append(FrameChange(t, None if name == "none" else name))
+    return tuple(out)
+
+
+def _cell_robot(node: Node, frames: dict[str, CellFrameSpec], duration: float
+                ) -> CellRobotSpec:
+    extra = ("kinematics", "track_types", "program", "master_frame")
+    rs = read_robot(_sub(node, extra))
+    kin = _kinematics(node.section("kinematics")) or Kinematics()
+    types: list[tuple[str, frozenset[int]]] = []
+    tn = node.section("track_types")
+    if tn is not None:
+        tn.check_keys(tuple(frames))
+        for fname in frames:
+            if tn.has(fname):
+                ts = [check_number(v, lambda m, line=line, path=path:
+                                   node.ctx.error(m, line, path), lo=0, hi=255, integer=True)
+                      for v, line, path in tn.items(fname)]
+                if not ts:
+                    raise tn.error(fname, "must list at least one item type")
+                types.append((fname, frozenset(ts)))
+    if node.has("program") and node.has("master_frame"):
+        raise node.error("master_frame", "give either a program or master_frame changes, "
+                                         "not both")
+    prog, pframe = None, None
+    if node.has("program"):
+        pn = node.section("program")
+        pframe = pn.string("frame")
+        if pframe not in frames:
+            raise pn.error("frame", f"unknown frame {pframe!r} (known: "
+                                    f"{', '.join(map(repr, frames))})")
+        prog = read_program(_sub(pn, ("frame",)))
+    changes = _changes(node, frames, duration) if node.has("master_frame") else ()
+    if prog is None and not changes:
+        raise node.error("program", "give a program (on one frame) or master_frame changes")
+    return CellRobotSpec(rs, kin, tuple(types), pframe, prog, changes)
+
+
+def _sensor(node: Node, frames: dict[str, CellFrameSpec], robots: list[str],
+            duration: float) -> SensorSpec:
+    node.check_keys(("frame", "robots", "trigger_times", "types", "radius_offsets_mm"))
+    fname = node.string("frame")
+    if fname not in frames:
+        raise node.error("frame", f"unknown frame {fname!r} (known: "
+                                  f"{', '.join(map(repr, frames))})")
+    names = _names(node, "robots", robots, "robot") if node.has("robots") else tuple(robots)
+    times = tuple(check_number(v, lambda m, line=line, path=path: node.ctx.error(m, line, path),
+                               lo=0.0, hi=duration, hi_open=True,
+                               unit="s (the scenario's duration)")
+                  for v, line, path in node.items("trigger_times"))
+    if list(times) != sorted(times):
+        raise node.error("trigger_times", "times must be in increasing order")
+
+    def per_time(key: str, default: Any, **kw) -> tuple:
+        if not node.has(key):
+            return (default,) * len(times)
+        items = node.items(key)
+        if len(items) != len(times):
+            raise node.error(key, f"must give one value per trigger time ({len(times)}), got "
+                                  f"{len(items)}")
+        return tuple(check_number(v, lambda m, line=line, path=path:
+                                  node.ctx.error(m, line, path), **kw)
+                     for v, line, path in items)
+    types = per_time("types", 0, lo=0, hi=255, integer=True)
+    drs = per_time("radius_offsets_mm", 0.0, unit="mm")
+    return SensorSpec(fname, names, times, types, drs)
+
+
+def parse_cell(root: Node, ctx, source: Path | None) -> CellScenario:
+    """Validate a cell scenario (``root``: the scenario's top-level node)."""
+    root.check_keys(("name", "duration_s", "tracker", "cell"))
+    name = root.string("name", "")
+    params = tracker_params(root.section("tracker", required=True))
+    duration = root.number("duration_s", lo=0.0, lo_open=True, unit="s")
+    n = round(duration / params.sample_time_s)
+    if n < 1 or n > MAX_SAMPLES:
+        raise root.error("duration_s", f"the run has {n} samples: must be in "
+                                       f"[1...{MAX_SAMPLES}]")
+    cn = root.section("cell", required=True)
+    cn.check_keys(("masters", "frames", "robots", "sensors"))
+    mn = cn.section("masters", required=True)
+    masters: dict[str, MasterSpec] = {}
+    for key in mn.m:
+        sec = mn.section(key, required=True)
+        if sec.has("log"):
+            raise sec.error("log", "encoder logs replay single-frame conveyor scenarios only")
+        masters[str(key)] = read_master(sec)
+    if not masters:
+        raise cn.error("masters", "must define at least one master")
+    frames: dict[str, CellFrameSpec] = {}
+    for v, line, path in cn.items("frames"):
+        fs = _cell_frame(Node(ctx, v, path, line), masters)
+        if fs.name in frames:
+            raise ctx.error(f"frame name {fs.name!r} is used twice", line, path)
+        frames[fs.name] = fs
+    robots: list[CellRobotSpec] = []
+    for v, line, path in cn.items("robots"):
+        rs = _cell_robot(Node(ctx, v, path, line), frames, duration)
+        if rs.name in [r.name for r in robots]:
+            raise ctx.error(f"robot name {rs.name!r} is used twice", line, path)
+        robots.append(rs)
+    if not frames or not robots:
+        raise cn.error("frames" if not frames else "robots", "must list at least one")
+    sensors = tuple(_sensor(Node(ctx, v, path, line), frames, [r.name for r in robots],
+                            duration) for v, line, path in cn.items("sensors"))
+    return CellScenario(params, float(duration), masters, tuple(frames.values()),
+                        tuple(robots), sensors, name, source)
+
+
+# -- the run -----------------------------------------------------------------------------
+@dataclass
+class RobotTrace:
+    """One robot's arrays over samples 0..N (row 0: before the first step).  mm, s."""
+
+    name: str
+    setpoint_pos: np.ndarray
+    setpoint_ori: np.ndarray
+    imfs: np.ndarray
+    slave: np.ndarray
+    master_frame: list[str]              #: the MasterFrame per sample ("" for none)
+    events: list[Event]
+    records: list[ItemRecord]
+    picks: dict[int, float]
+    robot: RobotGroup
+
+    def count(self, status: str) -> int:
+        return sum(1 for r in self.records if r.status.value == status)
+
+    @property
+    def caught(self) -> int:
+        return sum(1 for r in self.records if r.caught)
+
+
+@dataclass
+class CellResult:
+    scenario: CellScenario
+    time_s: np.ndarray
+    master_values: dict[str, np.ndarray]   #: per frame: (N+1, NOF) source values
+    robots: dict[str, RobotTrace]
+    frames: dict[str, MovingFrame]
+    triggers: list[tuple[int, str, str, int, int]] = field(default_factory=list)
+    """(sample, robot, frame, item id, item type) of every TRIGGER."""
+
+    @property
+    def sample_time_s(self) -> float:
+        return self.scenario.sample_time_s
+
+
+def _source(ms: MasterSpec, T: float, name: str):
+    fn = master_fn(ms)
+    if ms.encoder is None:
+        return SimulatedAxis(fn, name), fn, 1.0
+    cpu, mod = ms.encoder.counts_per_unit, ms.encoder.modulus
+    src = EncoderSource(T, modulus=mod, counts=lambda k: quantise_counts(fn(k * T)[0], cpu, mod),
+                        window=ms.encoder.window, name=name)
+    return src, fn, cpu
+
+
+def run_cell(sc: CellScenario) -> CellResult:
+    """Run a validated cell scenario."""
+    T = sc.sample_time_s
+    n = sc.n_samples
+    frames: dict[str, MovingFrame] = {}
+    latch: dict[str, list] = {}
+    for fs in sc.frames:
+        srcs, fns = [], []
+        per = []
+        for mname in fs.masters:
+            src, fn, cpu = _source(sc.masters[mname], T, mname)
+            srcs.append(src)
+            fns.append((fn, sc.masters[mname]))
+            per.append(cpu)
+        s = fs.spec
+        if s.type == LINEAR:
+            frames[fs.name] = MovingFrame(
+                fs.name, srcs, directions=list(fs.directions),
+                scales=[k / c for k, c in zip(fs.scales, per)], origin=s.origin,
+                limits=s.limits, window=fs.window, world=fs.world)
+        else:
+            frames[fs.name] = MovingFrame(
+                fs.name, srcs, type=s.type, upstream=s.upstream, arc_point=s.arc_point,
+                downstream=s.downstream, up_master=s.up_master * per[0],
+                down_master=s.down_master * per[0], limits=s.limits, window=fs.window,
+                world=fs.world)
+        latch[fs.name] = fns
+    robots: dict[str, RobotGroup] = {}
+    programs: dict[str, PickProgram] = {}
+    for rs in sc.robots:
+        r = rs.robot
+        robot = RobotGroup(r.name, sc.params.with_(mode=Mode(r.slave)), start=r.start,
+                           base=r.base, tool=r.tool, motion_limits=r.motion,
+                           buffer_capacity=r.buffer_capacity, default_mode=r.slave,
+                           kinematics=rs.kinematics)
+        for fname, types in rs.track_types:
+            robot.track_types(fname, types)
+        robots[r.name] = robot
+        if rs.program is not None:
+            programs[r.name] = PickProgram(robot, frames[rs.program_frame], rs.program, r.slave)
+    cell = ConveyorCell(list(frames.values()), list(robots.values()))
+
+    def values_at(fname: str, t: float) -> tuple[float, ...]:
+        out = []
+        f = frames[fname]
+        for i, (fn, ms) in enumerate(latch[fname]):
+            v = fn(t)[0]
+            if ms.encoder is not None:
+                c = quantise_counts(v, ms.encoder.counts_per_unit, ms.encoder.modulus)
+                if ms.encoder.modulus:
+                    c = unwrap_counts(int(round(f.master[i].pos)), c, ms.encoder.modulus)
+                v = float(c)
+            out.append(v)
+        return tuple(out)
+
+    by_k: dict[int, list[tuple[SensorSpec, int]]] = {}
+    for s in sc.sensors:
+        for i, t in enumerate(s.times):
+            by_k.setdefault(int(math.floor(t / T + 1e-9)), []).append((s, i))
+    changes: dict[int, list[tuple[str, FrameChange]]] = {}
+    for rs in sc.robots:
+        for c in rs.changes:
+            changes.setdefault(int(round(c.time_s / T)), []).append((rs.name, c))
+    triggers: list[tuple[int, str, str, int, int]] = []
+    extra: dict[str, list[Event]] = {name: [] for name in robots}
+    traces = {name: dict(pos=[r.setpoint.pos], ori=[r.setpoint.ori], imfs=[0], slave=[0],
+                         mf=[""], events=[]) for name, r in robots.items()}
+    mvals = {name: [tuple(s.pos for s in f.master)] for name, f in frames.items()}
+    last: dict[str, tuple[Event, ...]] = {name: () for name in robots}
+    for k in range(n):
+        for s, i in by_k.get(k, ()):
+            vals = values_at(s.frame, s.times[i])
+            for rname in s.robots:
+                try:
+                    e = robots[rname].trigger(frames[s.frame], values=vals, dr_mm=s.dr_mm[i],
+                                              item_type=s.types[i])
+                except TriggerBufferFull as exc:
+                    extra[rname].append(Event(k, "trigger_rejected", s.frame, message=str(exc)))
+                    continue
+                triggers.append((k, rname, s.frame, e.id, e.item_type))
+        for rname, c in changes.get(k, ()):
+            try:
+                robots[rname].set_master_frame(frames[c.frame] if c.frame else None)
+            except CantrackError as exc:
+                extra[rname].append(Event(k, "command_error", c.frame or "", message=str(exc)))
+        for rname, prog in programs.items():
+            prog.tick(last[rname])
+        outs = cell.step()
+        for rname, out in outs.items():
+            tr = traces[rname]
+            last[rname] = out.events
+            tr["events"].extend(extra[rname])
+            extra[rname].clear()
+            tr["events"].extend(out.events)
+            tr["pos"].append(out.setpoint.pos)
+            tr["ori"].append(out.setpoint.ori)
+            tr["imfs"].append(int(out.imfs))
+            tr["slave"].append(out.slave)
+            tr["mf"].append(out.master_frame or "")
+        for name, f in frames.items():
+            mvals[name].append(tuple(s.pos for s in f.master))
+    rt = {}
+    for name, r in robots.items():
+        tr = traces[name]
+        prog = programs.get(name)
+        rt[name] = RobotTrace(name, np.array(tr["pos"]), np.array(tr["ori"]),
+                              np.array(tr["imfs"]), np.array(tr["slave"]), tr["mf"],
+                              tr["events"], [r.records[i] for i in sorted(r.records)],
+                              dict(prog.picks) if prog is not None else {}, r)
+    return CellResult(sc, np.arange(n + 1) * T, {k: np.array(v) for k, v in mvals.items()},
+                      rt, frames, triggers)
+
+
+# -- outputs --------------------------------------------------------------------------------
+def write_cell_trace(result: CellResult, path: str | Path) -> Path:
+    """One row per sample: every frame's master values, then per robot the TCP setpoint
+    (position, quaternion), IMFS, slave, MasterFrame and the events of that sample."""
+    path = Path(path)
+    r = result
+    T = r.sample_time_s
+    head = ["time_s"]
+    for name, mv in r.master_values.items():
+        head += [f"{name}_master{i + 1}" for i in range(mv.shape[1])]
+    ev: dict[str, dict[int, list[str]]] = {}
+    for rn, tr in r.robots.items():
+        head += [f"{rn}_{c}" for c in ("x_mm", "y_mm", "z_mm", "qw", "qx", "qy", "qz", "imfs",
+                                       "slave", "master_frame", "events")]
+        d: dict[int, list[str]] = {}
+        for e in tr.events:
+            d.setdefault(e.sample, []).append(
+                e.kind + (f"({e.item})" if e.item is not None else "")
+                + (f"[{e.code}]" if e.code else ""))
+        ev[rn] = d
+    with path.open("w", newline="", encoding="utf-8") as fh:
+        w = csv.writer(fh, lineterminator="\n")
+        w.writerow(head)
+        for k in range(len(r.time_s)):
+            row: list[Any] = [repr(round(k * T, 12))]
+            for mv in r.master_values.values():
+                row += [repr(float(x)) for x in mv[k]]
+            for rn, tr in r.robots.items():
+                row += [repr(float(x)) for x in tr.setpoint_pos[k]]
+                row += [repr(float(x)) for x in tr.setpoint_ori[k]]
+                row += [int(tr.imfs[k]), int(tr.slave[k]), tr.master_frame[k],
+                        ";".join(ev[rn].get(k, ()))]
+            w.writerow(row)
+    return path
+
+
+def format_cell_summary(result: CellResult) -> str:
+    """The summary of a cell scenario: every frame, then every robot with its items."""
+    from ..conveyor import ITEM_MISSED_CODE
+    from ..tracking import Imfs
+    from .conveyor import type_name
+
+    r = result
+    sc = r.scenario
+    T = sc.sample_time_s
+    title = str(sc.source) if sc.source is not None else "<scenario>"
+    if sc.name:
+        title += f"  ({sc.name})"
+    lines = [f"Scenario   {title}",
+             f"Cell       {len(sc.frames)} frame(s), {len(sc.robots)} robot(s), planner "
+             f"{sc.params.planner}, T = {T * 1000:g} ms, {sc.n_samples} samples = "
+             f"{sc.n_samples * T:.3f} s"]
+    for fs in sc.frames:
+        unit = "mm" if fs.spec.type == LINEAR else "deg"
+        w = fs.window
+        win = ", ".join(f"{u:g}...{d:g}" for u, d in zip(w.upstream, w.downstream))
+        lines.append(f"Frame      '{fs.name}' {type_name(fs.spec.type)}, NOF {fs.nof} "
+                     f"(masters {', '.join(fs.masters)}), window {win} {unit}")
+    for rs in sc.robots:
+        tr = r.robots[rs.name]
+        how = (f"program on '{rs.program_frame}'" if rs.program is not None else
+               "MasterFrame " + ", ".join(f"{c.frame or 'none'} @{c.time_s:g} s"
+                                          for c in rs.changes))
+        lines.append("")
+        types = "; ".join(f"{f}: types {sorted(t)}" for f, t in rs.track_types)
+        lines.append(f"Robot      '{rs.name}' ({rs.kinematics}), slave {rs.robot.slave}, {how}"
+                     + (f"; {types}" if types else ""))
+        n = len(tr.records)
+        lines.append(f"  items    {n} triggered: {tr.caught} caught, {len(tr.picks)} picked, "
+                     f"{tr.count('missed')} missed ({ITEM_MISSED_CODE}), "
+                     f"{tr.count('skipped')} skipped, {tr.count('ignored')} ignored "
+                     f"(type not tracked), {tr.count('lost')} lost")
+        for rec in tr.records:
+            lines.append(f"  item {rec.item_id:3d} frame '{rec.frame}' type {rec.item_type}: "
+                         f"{rec.status.value:8s} trigger {rec.trigger_s:.3f} s"
+                         + ("" if rec.synced_s is None else f", synced {rec.synced_s:.3f} s")
+                         + ("" if rec.time_to_sync_s is None
+                            else f" (to sync {rec.time_to_sync_s:.3f} s)"))
+        hand = [e for e in tr.events if e.kind in ("handoff", "item_missed", "tracker_error",
+                                                   "command_error")]
+        for e in hand:
+            lines.append(f"  {e.sample * T:.3f} s  {e.kind}  {e.frame}  {e.message}".rstrip())
+        lines.append(f"  final    IMFS {Imfs(int(tr.imfs[-1])).name}, slave "
+                     f"{int(tr.slave[-1])}, MasterFrame {tr.master_frame[-1] or 'none'}, "
+                     f"{len(tr.robot.buffer)} item(s) left in the buffer")
+    return "\n".join(lines)
+
+
+def plot_cell_result(result: CellResult, path: str | Path, *, dpi: int = 110) -> Path:
+    """PNG of a cell scenario: left, the XY plane [mm] with every frame's path and window and
+    every robot's TCP path; right, per robot, the TCP's x, y, z over time [s] and its IMFS
+    with the MasterFrame named where it changes."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    r = result
+    nr = len(r.robots)
+    fig = Figure(figsize=(13, 3.2 + 2.6 * nr))
+    FigureCanvasAgg(fig)
+    gs = fig.add_gridspec(2 * nr, 2, width_ratios=[1.0, 1.25],
+                          height_ratios=[2.2, 1.0] * nr, left=0.06, right=0.98, bottom=0.07,
+                          top=0.93, wspace=0.2, hspace=0.45)
+    ax = fig.add_subplot(gs[:, 0])
+    colours = ["tab:orange", "tab:purple", "tab:brown", "tab:olive", "tab:cyan"]
+    for i, (name, f) in enumerate(r.frames.items()):
+        g = f.geometry()
+        c = colours[i % len(colours)]
+        w = f.window
+        if f.type == LINEAR:
+            o = np.array(g.origin.pos)
+            pts = [o]
+            corners = []
+            for d, (u, dn) in zip(g.directions, zip(w.upstream, w.downstream)):
+                corners.append((np.array(d), max(u, -1e5), min(dn, 1e5)))
+            if len(corners) == 1:
+                d, u, dn = corners[0]
+                seg = np.array([o + d * u, o + d * dn])
+                ax.plot(seg[:, 0], seg[:, 1], color=c, lw=5, alpha=0.45, solid_capstyle="butt",
+                        label=f"frame {name} window")
+            else:
+                (d1, u1, e1), (d2, u2, e2) = corners[:2]
+                box = np.array([o + d1 * a + d2 * b for a, b in
+                                ((u1, u2), (e1, u2), (e1, e2), (u1, e2), (u1, u2))])
+                ax.plot(box[:, 0], box[:, 1], color=c, lw=2, label=f"frame {name} window")
+            ax.plot(pts[0][0], pts[0][1], "s", color=c, ms=5)
+        else:
+            arc = g.arc
+            xs = np.linspace(max(0.0, w.upstream[0]), min(arc.alpha_deg, w.downstream[0]), 91)
+            win = np.array([arc.position(x) for x in xs])
+            ax.plot(win[:, 0], win[:, 1], color=c, lw=5, alpha=0.45, solid_capstyle="butt",
+                    label=f"frame {name} window")
+    for j, (rn, tr) in enumerate(r.robots.items()):
+        ax.plot(tr.setpoint_pos[:, 0], tr.setpoint_pos[:, 1], lw=1.2, label=f"robot {rn} TCP")
+        t = r.time_s
+        at = fig.add_subplot(gs[2 * j, 1])
+        ai = fig.add_subplot(gs[2 * j + 1, 1], sharex=at)
+        for i, (cn, c) in enumerate(zip("xyz", ("tab:blue", "tab:orange", "tab:green"))):
+            at.plot(t, tr.setpoint_pos[:, i], color=c, lw=1.0, label=f"{cn}")
+        for rec in tr.records:
+            if rec.synced_s is not None:
+                at.axvline(rec.synced_s, color="tab:green", lw=0.6, alpha=0.6)
+            if rec.missed_sample is not None:
+                at.axvline(rec.missed_sample * r.sample_time_s, color="tab:red", lw=0.8)
+        at.set_title(f"robot {rn}: {len(tr.records)} items, {tr.caught} caught, "
+                     f"{tr.count('missed')} missed", fontsize=9)
+        at.set_ylabel("TCP [mm]")
+        at.grid(True, lw=0.4, alpha=0.6)
+        at.legend(loc="upper left", fontsize=7, ncol=3)
+        ai.step(t, tr.imfs, where="post", color="k", lw=1.0)
+        prev = ""
+        for k, mf in enumerate(tr.master_frame):
+            if mf != prev:
+                ai.annotate(mf or "none", (t[k], 1.05), fontsize=7, color="tab:blue")
+                prev = mf
+        ai.set_ylim(-2.4, 1.6)
+        ai.set_yticks([-2, -1, 0, 1])
+        ai.set_ylabel("IMFS")
+        ai.grid(True, lw=0.4, alpha=0.6)
+        ai.set_xlim(t[0], t[-1])
+    ai.set_xlabel("time [s]")
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.set_xlabel("x [mm]")
+    ax.set_ylabel("y [mm]")
+    ax.grid(True, lw=0.4, alpha=0.6)
+    ax.legend(loc="best", fontsize=7)
+    sc = r.scenario
+    ax.set_title(sc.name or (sc.source.name if sc.source else "cell scenario"), fontsize=10)
+    path = Path(path)
+    fig.savefig(path, dpi=dpi)
+    return path
+
