@@ -196,6 +196,8 @@ def test_type_change_while_engaged_is_an_error_and_rotary_needs_nof_1():
         with pytest.raises(ParameterError, match="NOF = 1"):
             two.type = t
     with pytest.raises(ParameterError, match="must be 0"):
+        two.type = 4
+    with pytest.raises(ParameterError, match=r"type 3 \(group\) is made by MovingFrame.group"):
         two.type = 3
     with pytest.raises(StateError, match="rotary frames"):
         two.center

@@ -124,7 +124,7 @@ def predict_catch(robot, frame: MovingFrame | None = None, item: TriggerEntry | 
     params = link.params if link is not None else robot.tracker_params.with_(
         mode=Mode.ABSOLUTE, master_max_trans=fr.limits.trans, master_max_rot=fr.limits.rot)
     eff = params.effective()
-    pt = geo.point(c, cd, (0.0,) * geo.nof, item.dr_mm)
+    pt = geo.point(c, cd, (0.0,) * geo.nof, item.dr_mm, item)
     speed = math.sqrt(sum(x * x for x in pt.vel))
     common = dict(enter_in_s=t_enter, leave_in_s=t_leave)
     if speed > fr.limits.VelocityMaxTrans or abs(pt.ang_vel) > fr.limits.VelocityMaxRot:
@@ -151,7 +151,7 @@ def predict_catch(robot, frame: MovingFrame | None = None, item: TriggerEntry | 
         axis = geo.local_axis
         ref, same_item, mode = None, False, robot.default_mode
     if ref is None:
-        ref = geo.zero(item.dr_mm) if mode == Mode.RELATIVE else robot.virtual.location
+        ref = geo.zero(item.dr_mm, item) if mode == Mode.RELATIVE else robot.virtual.location
     twist = 0.0
     if mode == Mode.ABSOLUTE:
         # slave = 3 brings the orientation on too: the angle channel's part of the offset
@@ -159,7 +159,7 @@ def predict_catch(robot, frame: MovingFrame | None = None, item: TriggerEntry | 
         if same_item and link is not None:
             twist = link.twist_deg
         else:
-            e = q_mul(q_conj(ref.ori), geo.zero(item.dr_mm).ori)
+            e = q_mul(q_conj(ref.ori), geo.zero(item.dr_mm, item).ori)
             if not (isinstance(geo, RotaryGeometry) and geo.rotates) and \
                     tracker.setpoint.ang == 0.0 and off_a == 0.0:
                 axis, ang = q_to_axis_angle(e)
@@ -185,7 +185,7 @@ def predict_catch(robot, frame: MovingFrame | None = None, item: TriggerEntry | 
     def frame_point(t: float):
         m = tuple(SourceState(s.pos + s.vel * t, s.vel, 0.0) for s in master)
         cc, ccd, _ = fr.coords(item, m)
-        return cc, geo.point(cc, ccd, (0.0,) * geo.nof, item.dr_mm)
+        return cc, geo.point(cc, ccd, (0.0,) * geo.nof, item.dr_mm, item)
 
     def target_of(p, op, oa) -> MotionState:
         pos = tuple(h - r + o for h, r, o in zip(p.here.pos, ref.pos, op))

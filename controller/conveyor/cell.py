@@ -37,12 +37,25 @@ def _ordered(frames: Sequence[MovingFrame]) -> list[MovingFrame]:
 
 
 class ConveyorCell:
-    """Frames and robots on a common sample clock (``sample_time_s``)."""
+    """Frames and robots on a common sample clock (``sample_time_s``).
+
+    Order in a sample: the frames (a frame after the frames it uses as sources), then the
+    robots - those whose TCP is a group frame's master first, each such group frame updated
+    right after its master robot.
+    """
 
     def __init__(self, frames: Sequence[MovingFrame], robots: Sequence[RobotGroup],
                  sample_time_s: float | None = None) -> None:
-        self.frames = _ordered(frames)
-        self.robots = list(robots)
+        group = [f for f in frames if f.group_source is not None]
+        self.frames = _ordered([f for f in frames if f.group_source is None]) + group
+        # group frames (a robot's TCP as master) update right after their master robot, and
+        # the robots that are masters update first, so the TCP read is this sample's
+        masters = [f.group_source.robot for f in group]
+        self.robots = [r for r in robots if r in masters] + \
+            [r for r in robots if r not in masters]
+        self._after: dict[str, list[MovingFrame]] = {}
+        for f in group:
+            self._after.setdefault(f.group_source.robot.name, []).append(f)
         T = sample_time_s if sample_time_s is not None else (
             self.robots[0].T if self.robots else None)
         if T is None:
@@ -73,8 +86,14 @@ class ConveyorCell:
         self.k += 1
         t = self.k * self.T
         for f in self.frames:
-            f.update(self.k, t)
-        return {r.name: r.update() for r in self.robots}
+            if f.group_source is None:
+                f.update(self.k, t)
+        out = {}
+        for r in self.robots:
+            out[r.name] = r.update()
+            for f in self._after.get(r.name, ()):
+                f.update(self.k, t)
+        return out
 
     def run(self, n: int) -> list[dict[str, RobotOutput]]:
         return [self.step() for _ in range(n)]

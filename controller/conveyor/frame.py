@@ -9,7 +9,10 @@ Types (``<MF>.type``, default 0):
 
 - 0 linear: NOF sources, each along a direction (:mod:`.frames.linear`);
 - 1 rotary: the arc through UpStream[1], ArcPoint, DownStream[1] (:mod:`.frames.rotary`);
-- 2 rotary decoupled: as 1, but the orientation does not change with the master source.
+- 2 rotary decoupled: as 1, but the orientation does not change with the master source;
+- 3 group: another robot group's TCP, 4 DOFs (x, y, z, angle about an axis), the item's
+  location taken at TRIGGER (:mod:`.frames.group`; not on the page, which plans it as
+  "phase 3"); made by :meth:`MovingFrame.group`.
 
 Errors where softMC puts them (docs/spec/conveyor.md#3.1, #3.4.1):
 
@@ -31,19 +34,23 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, fields
-from typing import Sequence
+from typing import TYPE_CHECKING, Sequence
 
 from ..errors import ParameterError, StateError
 from ..tracking import Limits, TrackError
-from .frames import FramePoint, LinearGeometry, RotaryGeometry
+from .frames import FramePoint, GroupGeometry, LinearGeometry, RotaryGeometry
 from .kinematics import Kinematics
 from .location import Location, Vec3, as_location, v_norm
-from .sources import MasterSource, SourceState
+from .sources import GroupSource, MasterSource, SourceState
 from .triggers import TriggerEntry
 from .window import Window, WindowPosition
 
-LINEAR, ROTARY, ROTARY_DECOUPLED = 0, 1, 2
-TYPE_NAMES = {LINEAR: "linear", ROTARY: "rotary", ROTARY_DECOUPLED: "rotary decoupled"}
+if TYPE_CHECKING:
+    from .robot import RobotGroup
+
+LINEAR, ROTARY, ROTARY_DECOUPLED, GROUP = 0, 1, 2, 3
+TYPE_NAMES = {LINEAR: "linear", ROTARY: "rotary", ROTARY_DECOUPLED: "rotary decoupled",
+              GROUP: "group (robot TCP)"}
 
 
 @dataclass(frozen=True, slots=True)
@@ -135,6 +142,9 @@ class MovingFrame:
             raise ParameterError(f"frame {name!r}: the window has {self.window.nof} DOF(s), "
                                  f"the frame NOF = {self.nof}")
         self._type = LINEAR
+        #: type 3: the robot TCP source (set by :meth:`group`)
+        self.group_source: GroupSource | None = None
+        self.group_axis: Vec3 = (0.0, 0.0, 1.0)
         #: the robot that has this frame as its (syncing/synced) MasterFrame, or None
         self.engaged_by: str | None = None
         #: robots de-syncing from this frame (it cannot be engaged until the set is empty)
@@ -145,6 +155,27 @@ class MovingFrame:
         self.sample = 0
         self.type = type
 
+    @classmethod
+    def group(cls, name: str, master: "RobotGroup", *, transform: Location | None = None,
+              axis: Sequence[float] = (0.0, 0.0, 1.0), window: Window | None = None,
+              limits: FrameLimits = FrameLimits(), world: Kinematics | None = None
+              ) -> "MovingFrame":
+        """A group frame (type 3): the TCP of robot group ``master`` as the master source,
+        in this frame's world (``transform : TCP``; the transformation between the tracked and
+        the tracking kinematics), with its rotation about ``axis`` (world).  The window is over
+        the 4 coordinates (Δx, Δy, Δz [mm], Δθ [deg] since the trigger; default unlimited);
+        ``world`` defaults to the master robot's kinematics (a robot of another system cannot
+        track it).  Items get their full location at TRIGGER (``RobotGroup.trigger`` with
+        ``offset=`` relative to the TCP, or ``location=``).
+        """
+        src = GroupSource(master, transform, axis)
+        f = cls(name, src.axes(), window=window if window is not None else Window.unlimited(4),
+                limits=limits, world=world if world is not None else master.kinematics)
+        f.group_source = src
+        f.group_axis = src.axis
+        f._type = GROUP
+        return f
+
     # -- type -------------------------------------------------------------------------------
     @property
     def type(self) -> int:
@@ -152,13 +183,16 @@ class MovingFrame:
 
     @type.setter
     def type(self, value: int) -> None:
-        if isinstance(value, bool) or value not in (LINEAR, ROTARY, ROTARY_DECOUPLED):
+        if isinstance(value, bool) or value not in (LINEAR, ROTARY, ROTARY_DECOUPLED, GROUP):
             raise ParameterError(f"<{self.name}>.type (={value!r}) must be 0 (linear), "
-                                 "1 (rotary) or 2 (rotary decoupled)")
+                                 "1 (rotary), 2 (rotary decoupled) or 3 (group)")
+        if (value == GROUP) != (self.group_source is not None):
+            raise ParameterError(f"<{self.name}>.type 3 (group) is made by MovingFrame.group() "
+                                 "(a robot's TCP as the master) and cannot be changed")
         if self.linked:
             raise StateError(f"<{self.name}>.type cannot be set while the moving frame is "
                              f"engaged (linked to robot(s) {self._linked_names()})")
-        if value != LINEAR and self.nof != 1:
+        if value in (ROTARY, ROTARY_DECOUPLED) and self.nof != 1:
             raise ParameterError(f"<{self.name}>.type (={value}) rotary needs NOF = 1 "
                                  f"(this frame has NOF = {self.nof})")
         self._type = int(value)
@@ -186,7 +220,9 @@ class MovingFrame:
             self._linked_geometry = None
 
     # -- geometry ---------------------------------------------------------------------------
-    def _build_geometry(self) -> LinearGeometry | RotaryGeometry:
+    def _build_geometry(self) -> LinearGeometry | RotaryGeometry | GroupGeometry:
+        if self._type == GROUP:
+            return GroupGeometry(self.group_axis, self.group_source.robot.kinematics.dimension)
         if self._type == LINEAR:
             if len(self.directions) != self.nof or len(self.scales) != self.nof:
                 raise ParameterError(f"frame {self.name!r}: give one direction and one scale "
@@ -208,7 +244,7 @@ class MovingFrame:
         return self._build_geometry()
 
     def _rotary(self) -> RotaryGeometry:
-        if self._type == LINEAR:
+        if self._type in (LINEAR, GROUP):
             raise StateError(f"<{self.name}>: center/start/normal/radius/alpha exist for "
                              "rotary frames (type 1 or 2) only")
         return self.geometry()
@@ -274,14 +310,14 @@ class MovingFrame:
               ) -> FramePoint:
         """``<MF>.here`` for ``item``, with its rates."""
         c, cd, cdd = self.coords(item, master)
-        return self.geometry().point(c, cd, cdd, item.dr_mm)
+        return self.geometry().point(c, cd, cdd, item.dr_mm, item)
 
     def here(self, item: TriggerEntry) -> Location:
         return self.point(item).here
 
     def zero(self, item: TriggerEntry | None = None) -> Location:
         """``<MF>.zero`` (MF(0)): the item's location at its trigger."""
-        return self.geometry().zero(item.dr_mm if item is not None else 0.0)
+        return self.geometry().zero(item.dr_mm if item is not None else 0.0, item)
 
     def window_position(self, item: TriggerEntry,
                         master: Sequence[SourceState] | None = None) -> WindowPosition:

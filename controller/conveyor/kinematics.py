@@ -79,9 +79,11 @@ class Kinematics:
 
 def _frame_needs(frame: "MovingFrame") -> tuple[bool, tuple[float, float, float] | None]:
     """(translation with a Z component, the rotation axis (world) or None) of a frame."""
-    from .frames import RotaryGeometry
+    from .frames import GroupGeometry, RotaryGeometry
 
     geo = frame.geometry()
+    if isinstance(geo, GroupGeometry):   # as the master robot moves
+        return geo.master_dimension >= 3, (geo.axis if geo.master_dimension >= 4 else None)
     if isinstance(geo, RotaryGeometry):
         z = abs(geo.axis[0]) > AXIS_TOLERANCE or abs(geo.axis[1]) > AXIS_TOLERANCE
         return z, (geo.axis if geo.rotates else None)

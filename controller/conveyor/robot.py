@@ -102,7 +102,7 @@ from ..tracking import Imfs, Mode, MotionState, TrackError, TrackerParams, Track
 from .errors import (ITEM_MISSED_CODE, FrameBusyError, NoFrameError, TooManyFramesError)
 from .frame import MovingFrame
 from .kinematics import Kinematics, check_compatible
-from .frames import FramePoint, RotaryGeometry
+from .frames import FramePoint, GroupGeometry, RotaryGeometry
 from .location import (Q_IDENTITY, Location, Quat, Vec3, as_location, q_axis_angle, q_conj,
                        q_mul, q_to_axis_angle, q_twist_angle)
 from .motion import KEEP, Motion, MotionLimits, VirtualRobot
@@ -175,7 +175,8 @@ class FrameLink:
         #: rotary type 1; for frames whose orientation does not turn, chosen at the first
         #: slave = 3 engage as the axis of the orientation offset (else z, unused)
         self.axis: Vec3 = self.geo.local_axis
-        self._axis_free = not (isinstance(self.geo, RotaryGeometry) and self.geo.rotates)
+        self._axis_free = not ((isinstance(self.geo, RotaryGeometry) and self.geo.rotates)
+                               or isinstance(self.geo, GroupGeometry))
         self.tracker = ConveyorTracker(self.params, MotionState())
         self.offset_pos: Vec3 = _ZERO3
         self.offset_ang = 0.0
@@ -251,8 +252,13 @@ class FrameLink:
             rec.left_sample = None
             if rec.status == ItemStatus.SKIPPED:
                 rec.status = ItemStatus.CAUGHT if rec.caught else ItemStatus.PENDING
+        if isinstance(self.geo, GroupGeometry) and self.tracker.state == TrackState.OFF and \
+                self.offset_ang == 0.0 and self.tracker.setpoint.ang == 0.0:
+            # the item's own rotation axis (its orientation at the trigger); kept while the
+            # angle channel is in use
+            self.axis = self.geo.local_axis_for(entry)
         if self.mode == Mode.RELATIVE:
-            self.ref = self.geo.zero(entry.dr_mm)
+            self.ref = self.geo.zero(entry.dr_mm, entry)
         else:
             self.ref = None  # set at the engage (the virtual robot then)
         self._evaluate()
@@ -261,7 +267,7 @@ class FrameLink:
         """Item coordinates, window position and tracker target from the frame's master."""
         item = self.item
         c, cd, cdd = self.frame.coords(item)
-        self.point = self.geo.point(c, cd, cdd, item.dr_mm)
+        self.point = self.geo.point(c, cd, cdd, item.dr_mm, item)
         self.window_position = self.frame.window.classify(c, item.inverse)
 
     def _make_target(self) -> MotionState:
@@ -293,7 +299,7 @@ class FrameLink:
         On a frame whose orientation does not turn (linear, rotary decoupled) a is chosen as
         E's own axis at the first engage, so there is no swing.
         """
-        e = q_mul(q_conj(self.ref.ori), self.geo.zero(self.item.dr_mm).ori)
+        e = q_mul(q_conj(self.ref.ori), self.geo.zero(self.item.dr_mm, self.item).ori)
         if self._axis_free and self.tracker.state == TrackState.OFF and \
                 self.offset_ang == 0.0 and self.tracker.setpoint.ang == 0.0:
             axis, ang = q_to_axis_angle(e)
@@ -776,7 +782,9 @@ class RobotGroup:
                 value: float | None = None, values: Sequence[float] | None = None,
                 dr_mm: float = 0.0, inverse: bool = False,
                 age_s: float | None = None, item_type: int = 0,
-                attributes: Mapping[str, float | str] | None = None) -> TriggerEntry:
+                attributes: Mapping[str, float | str] | None = None,
+                offset: Location | None = None,
+                location: Location | None = None) -> TriggerEntry:
         """``TRIGGER <robot> {NDOF = ndof Value = value} {MasterFrame = frame}
         {Type = item_type}``.
 
@@ -787,6 +795,9 @@ class RobotGroup:
         ``dr_mm``: radius offset (rotary frames); ``inverse``: the window direction flag;
         ``item_type``: the item's class (0...255; see :meth:`track_types`), ``attributes``:
         what else the sensor says about it (name -> number or text), kept in the entry.
+        Group frames (type 3): the item's full location at the trigger is taken now, the
+        master TCP's (at the edge) composed with ``offset`` (the item relative to the TCP,
+        default identity), or ``location`` (world) as given.
         Raises :class:`TriggerBufferFull` when the buffer is full.
         """
         fr = self._resolve(frame, "TRIGGER")
@@ -824,14 +835,36 @@ class RobotGroup:
                                          "must be a name with a finite number or a text")
             attrs = tuple((k, v if isinstance(v, str) else float(v))
                           for k, v in attributes.items())
+        zero = None
+        if isinstance(fr, MovingFrame) and fr.group_source is not None:
+            zero = self._group_zero(fr, vals, offset, location)
+        elif offset is not None or location is not None:
+            raise ParameterError(f"TRIGGER {self.name}: offset/location are for group frames "
+                                 f"(type 3), not for frame {name!r}")
         self._ids += 1
         linked = self.link_for(name) is not None
         entry = TriggerEntry(self._ids, name, tuple(vals), float(dr_mm), bool(inverse), self.k,
-                             linked, int(item_type), attrs)
+                             linked, int(item_type), attrs, zero)
         self.buffer.add(entry)  # raises TriggerBufferFull (the id is not reused: fine)
         self.records[entry.id] = ItemRecord(entry.id, name, self.name, self.T, self.k,
                                             item_type=int(item_type))
         return entry
+
+    @staticmethod
+    def _group_zero(fr: MovingFrame, vals: Sequence[float], offset: Location | None,
+                    location: Location | None) -> Location:
+        """W0, the item's location at the trigger on a group frame: the master TCP at the
+        latched values (the position; the orientation turned back about the frame axis by the
+        angle the TCP turned since) composed with ``offset``, or ``location``."""
+        if location is not None:
+            if offset is not None:
+                raise ParameterError("TRIGGER: give offset or location, not both")
+            return as_location(location)
+        now = fr.group_source.location()
+        cur = fr.source_values()
+        back = q_axis_angle(fr.group_axis, vals[3] - cur[3])
+        l0 = Location(tuple(vals[:3]), q_mul(back, now.ori))
+        return l0.compound(offset) if offset is not None else l0
 
     def _record(self, entry: TriggerEntry) -> ItemRecord:
         rec = self.records.get(entry.id)

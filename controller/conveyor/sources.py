@@ -13,6 +13,11 @@ deg).  Sources are deterministic: the same calls give the same values.
   given (:attr:`EncoderSource.log`) for a deterministic replay.
 - :class:`FrameSource` - another moving frame's DOF coordinate [mm or deg] (read after that
   frame was updated in the same sample).
+- :class:`GroupSource` - another robot group's TCP (the page's "group as a master source"):
+  its position and its rotation about an axis, in the tracking robot's world
+  (``transform : TCP``), as the four sources of a group frame (type 3); read after that
+  robot's update in the same sample (:class:`controller.conveyor.cell.ConveyorCell` orders
+  it so).
 """
 
 from __future__ import annotations
@@ -26,6 +31,8 @@ from ..tracking import MasterEstimator, unwrap_counts
 
 if TYPE_CHECKING:
     from .frame import MovingFrame
+    from .location import Location
+    from .robot import RobotGroup
 
 
 @dataclass(frozen=True, slots=True)
@@ -171,3 +178,75 @@ class FrameSource:
         cd = geo.rates([x.vel for x in m])[self.dof]
         cdd = geo.rates([x.acc for x in m])[self.dof]
         return SourceState(c, cd, cdd)
+
+
+class GroupSource:
+    """Another robot group's TCP as a master: ``transform : robot.setpoint`` [mm, quaternion].
+
+    The four DOFs (:meth:`axes`): x, y, z [mm] of the TCP and its rotation angle about
+    ``axis`` [deg] (the twist of its orientation, unwrapped: continuous over turns).  Rates:
+    the TCP velocity of the robot's output (exact), the angle rate and both accelerations by
+    backward differences over one sample ``T`` (an estimate, like an encoder's).
+    """
+
+    def __init__(self, robot: "RobotGroup", transform: "Location | None" = None,
+                 axis: Sequence[float] = (0.0, 0.0, 1.0), name: str | None = None) -> None:
+        from .location import Location, v_unit
+
+        self.robot = robot
+        self.transform = transform if transform is not None else Location()
+        self.axis = v_unit(axis, "group source axis")
+        self.name = name or f"{robot.name}.TCP"
+        self._k: int | None = None
+        self._state: tuple[SourceState, ...] = ()
+        self._prev: tuple[tuple[float, ...], float, tuple[float, ...]] | None = None
+        self._theta: float | None = None
+
+    def location(self) -> "Location":
+        """The master TCP now, in the tracking robot's world."""
+        return self.transform.compound(self.robot.setpoint)
+
+    def _sample(self, k: int) -> tuple[SourceState, ...]:
+        if self._k == k:
+            return self._state
+        from .location import q_rotate, q_twist_angle
+
+        loc = self.location()
+        vel = q_rotate(self.transform.ori, self.robot.velocity)
+        twist = q_twist_angle(loc.ori, self.axis)
+        if self._theta is None:
+            theta = twist
+        else:   # unwrap: the step between two samples is below 180 deg
+            d = (twist - self._theta) % 360.0
+            theta = self._theta + (d - 360.0 if d > 180.0 else d)
+        T = self.robot.T
+        if self._prev is None or self._k is None or k != self._k + 1:
+            acc = (0.0, 0.0, 0.0)
+            w = wd = 0.0
+        else:
+            pv, pth, pw = self._prev
+            acc = tuple((a - b) / T for a, b in zip(vel, pv))
+            w = (theta - pth) / T
+            wd = (w - pw[0]) / T
+        self._prev = (vel, theta, (w,))
+        self._theta = theta
+        self._k = k
+        self._state = tuple(SourceState(p, v, a) for p, v, a in zip(loc.pos, vel, acc)) + \
+            (SourceState(theta, w, wd),)
+        return self._state
+
+    def axes(self) -> tuple["GroupAxis", ...]:
+        """The four sources (x, y, z, angle) of a group frame."""
+        return tuple(GroupAxis(self, i) for i in range(4))
+
+
+class GroupAxis:
+    """DOF ``index`` (0-2: x, y, z [mm]; 3: angle [deg]) of a :class:`GroupSource`."""
+
+    def __init__(self, group: GroupSource, index: int) -> None:
+        self.group = group
+        self.index = index
+        self.name = f"{group.name}[{'xyzθ'[index]}]"
+
+    def read(self, k: int, t_s: float) -> SourceState:
+        return self.group._sample(k)[self.index]

@@ -28,6 +28,7 @@ from dataclasses import dataclass, replace
 from typing import AbstractSet, Iterator
 
 from ..errors import ParameterError
+from .location import Location
 from .errors import TriggerBufferFull
 
 
@@ -50,6 +51,8 @@ class TriggerEntry:
     linked: bool = True
     item_type: int = 0
     attributes: tuple[tuple[str, float | str], ...] = ()
+    #: group frames (type 3): the item's full location at the trigger, W0 (world)
+    zero: Location | None = None
 
     def attribute(self, name: str, default: float | str | None = None) -> float | str | None:
         """The value of attribute ``name`` (``default`` if the trigger did not give it)."""

@@ -61,12 +61,12 @@ class LinearGeometry:
         """Source rates (units/s or units/s^2) to DOF rates (mm/s, mm/s^2)."""
         return tuple(k * r for k, r in zip(self.scales, rates))
 
-    def zero(self, dr_mm: float = 0.0) -> Location:
+    def zero(self, dr_mm: float = 0.0, item: object = None) -> Location:
         """MF.zero: the item at its trigger (``dr_mm`` is ignored on a linear frame)."""
         return self.origin
 
     def point(self, c: Sequence[float], cd: Sequence[float], cdd: Sequence[float],
-              dr_mm: float = 0.0) -> FramePoint:
+              dr_mm: float = 0.0, item: object = None) -> FramePoint:
         p = list(self.origin.pos)
         v = [0.0, 0.0, 0.0]
         a = [0.0, 0.0, 0.0]

@@ -201,12 +201,12 @@ class RotaryGeometry:
             return self.upstream.ori
         return q_mul(q_axis_angle(self.arc.axis, x_deg), self.upstream.ori)
 
-    def zero(self, dr_mm: float = 0.0) -> Location:
+    def zero(self, dr_mm: float = 0.0, item: object = None) -> Location:
         """MF.zero for an item with radius offset ``dr_mm``: x = 0."""
         return Location(self.arc.position(0.0, dr_mm), self.upstream.ori)
 
     def point(self, c: Sequence[float], cd: Sequence[float], cdd: Sequence[float],
-              dr_mm: float = 0.0) -> FramePoint:
+              dr_mm: float = 0.0, item: object = None) -> FramePoint:
         arc = self.arc
         x, xd, xdd = c[0], cd[0], cdd[0]
         xr, wd, wdd = math.radians(x), math.radians(xd), math.radians(xdd)
