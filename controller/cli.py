@@ -31,6 +31,8 @@ from .errors import CantrackError
 COMMANDS: dict[str, tuple[str, str]] = {
     "simulate": ("controller.simulate.command:main",
                  "run a tracking scenario offline (CSV trace, summary, PNG plot)"),
+    "capacity": ("controller.simulate.capacity_command:main",
+                 "up to which belt speed and item rate a conveyor cell picks every item"),
     "demo": ("controller.canopen.cmd_demo:main", "tracking demo on a simulated CANopen bus"),
     "run": ("controller.canopen.cmd_run:main", "the CANopen tracking controller on a CAN bus"),
     "sim-devices": ("controller.canopen.cmd_sim:main", "simulated encoder and drives on a CAN bus"),

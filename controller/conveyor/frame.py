@@ -11,7 +11,7 @@ Types (``<MF>.type``, default 0):
 - 1 rotary: the arc through UpStream[1], ArcPoint, DownStream[1] (:mod:`.frames.rotary`);
 - 2 rotary decoupled: as 1, but the orientation does not change with the master source;
 - 3 group: another robot group's TCP, 4 DOFs (x, y, z, angle about an axis), the item's
-  location taken at TRIGGER (:mod:`.frames.group`; not on the page, which plans it as
+  location taken at TRIGGER (:mod:`.frames.group`; the softMC overview only plans it as
   "phase 3"); made by :meth:`MovingFrame.group`.
 
 Errors where softMC puts them (docs/spec/conveyor.md#3.1, #3.4.1):

@@ -19,7 +19,7 @@ circle pre-calculation) and raises :class:`KinematicsError` when
   component on a 2-dimensional robot; a rotation on a robot of dimension 2 or 3; a rotation
   about an axis other than Z on a robot of dimension 4.
 
-Docs: docs/spec/conveyor-extensions.md, "Kinematic compatibility".
+Spec: docs/spec/conveyor-extensions.md#2.
 """
 
 from __future__ import annotations

@@ -32,7 +32,7 @@ taken into account").  The master is ``MF(t).pos - V(engage).pos`` for the posit
 orientation offset ``E = V(engage).ori⁻¹·MF(0).ori`` is split into a twist about the angle
 channel's axis (added to that channel's target) and a constant swing approached by a second
 one-angle tracker with the same sync rotation limits (:meth:`FrameLink._orientation_offset`;
-docs/spec/conveyor-extensions.md, "Absolute mode").  slave = 5 is unchanged: the robot turns
+docs/spec/conveyor-extensions.md#1).  slave = 5 is unchanged: the robot turns
 with the frame, keeping its own orientation offset.
 
 **Virtual stopping position (#8.1).**  When a contribution starts to de-sync, the core's

@@ -13,7 +13,8 @@ deg).  Sources are deterministic: the same calls give the same values.
   given (:attr:`EncoderSource.log`) for a deterministic replay.
 - :class:`FrameSource` - another moving frame's DOF coordinate [mm or deg] (read after that
   frame was updated in the same sample).
-- :class:`GroupSource` - another robot group's TCP (the page's "group as a master source"):
+- :class:`GroupSource` - another robot group's TCP ("group as a master source",
+  docs/spec/conveyor-extensions.md#4):
   its position and its rotation about an axis, in the tracking robot's world
   (``transform : TCP``), as the four sources of a group frame (type 3); read after that
   robot's update in the same sample (:class:`controller.conveyor.cell.ConveyorCell` orders

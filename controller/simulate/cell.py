@@ -54,7 +54,8 @@ from typing import Any
 
 import numpy as np
 
-from ..conveyor import (ConveyorCell, EncoderSource, Event, Kinematics, MovingFrame, RobotGroup, SimulatedAxis, TriggerBufferFull, Window)
+from ..conveyor import (ConveyorCell, EncoderSource, Event, Kinematics, MovingFrame,
+                        RobotGroup, SimulatedAxis, TriggerBufferFull, Window)
 from ..conveyor.frame import LINEAR
 from ..conveyor.sources import quantise_counts
 from ..conveyor.telemetry import ItemRecord

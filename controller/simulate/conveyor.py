@@ -621,10 +621,24 @@ def _master_fn(m: MasterSpec):
     return lambda t: (m.start + m.speed * t, m.speed, 0.0)
 
 
-def run_conveyor(sc: ConveyorScenario) -> ConveyorResult:
-    """Run a validated conveyor scenario."""
+@dataclass
+class ConveyorSetup:
+    """The objects of a conveyor scenario's run: the cell, its frame, robot and program, the
+    master source, the master function (t -> (pos, vel, acc) [master units]) and the encoder
+    counts per master unit (1 without an encoder)."""
+
+    cell: ConveyorCell
+    frame: MovingFrame
+    robot: RobotGroup
+    program: "PickProgram"
+    source: Any
+    fn: Any
+    per_unit: float
+
+
+def build_conveyor(sc: ConveyorScenario) -> ConveyorSetup:
+    """The cell of a validated conveyor scenario, at sample 0 (nothing triggered yet)."""
     T = sc.sample_time_s
-    n = sc.n_samples
     fs, ms = sc.frame, sc.master
     fn = _master_fn(ms)
     per_unit = 1.0
@@ -655,6 +669,33 @@ def run_conveyor(sc: ConveyorScenario) -> ConveyorResult:
                        buffer_capacity=rs.buffer_capacity, default_mode=rs.slave)
     cell = ConveyorCell([frame], [robot])
     program = PickProgram(robot, frame, sc.program, rs.slave)
+    return ConveyorSetup(cell, frame, robot, program, source, fn, per_unit)
+
+
+def trigger_values(setup: ConveyorSetup, ms: MasterSpec, time_s: float) -> tuple[float, ...]:
+    """What the item sensor's TRIGGER latches at ``time_s`` [s]: the exact master value, or
+    the encoder's count then (unwrapped against the frame's continuous value)."""
+    fn, frame = setup.fn, setup.frame
+    if ms.encoder is None:
+        return (fn(time_s)[0],)
+    vals = (float(quantise_counts(fn(time_s)[0], ms.encoder.counts_per_unit,
+                                  ms.encoder.modulus)),)
+    if ms.encoder.modulus:
+        from ..tracking import unwrap_counts
+
+        cur = frame.source_values()[0]
+        vals = (float(unwrap_counts(int(round(cur)), int(vals[0]), ms.encoder.modulus)),)
+    return vals
+
+
+def run_conveyor(sc: ConveyorScenario) -> ConveyorResult:
+    """Run a validated conveyor scenario."""
+    T = sc.sample_time_s
+    n = sc.n_samples
+    ms = sc.master
+    setup = build_conveyor(sc)
+    cell, frame, robot, program = setup.cell, setup.frame, setup.robot, setup.program
+    source, fn = setup.source, setup.fn
 
     # the item sensor: TRIGGERs after step k, with the exact value at the sensor time
     by_k: dict[int, list[ItemSpec]] = {}
@@ -671,15 +712,7 @@ def run_conveyor(sc: ConveyorScenario) -> ConveyorResult:
             elif ms.log is not None:
                 vals = frame.source_values()
             elif ms.encoder is not None:
-                vals = (float(quantise_counts(fn(it.time_s)[0], ms.encoder.counts_per_unit,
-                                              ms.encoder.modulus)),)
-                # an absolute encoder value: unwrap it against the frame's continuous value
-                if ms.encoder.modulus:
-                    from ..tracking import unwrap_counts
-
-                    cur = frame.source_values()[0]
-                    vals = (float(unwrap_counts(int(round(cur)), int(vals[0]),
-                                                ms.encoder.modulus)),)
+                vals = trigger_values(setup, ms, it.time_s)
             else:
                 vals = (fn(it.time_s)[0],)
             try:

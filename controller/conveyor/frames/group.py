@@ -1,4 +1,4 @@
-"""Type 3, a robot group's TCP as the master (the overview page's "phase 3": "If the master
+"""Type 3, a robot group's TCP as the master (the softMC overview's "phase 3": "If the master
 source is another moving frame (e.g., TCP-coordinates of any other kinematics with more than
 2 axes), the offset/transformation between the tracking kinematics and the tracked
 kinematics is considered ... the offset must be taken into consideration in TRIGGER").
@@ -22,7 +22,7 @@ so ``MF(t) = M(t) : W0`` with the TCP's motion since the trigger ``M = L(t) : L0
 when the TCP turns about ``axis`` only: the frame's one rotation channel; a rotation about
 other axes is not followed).  Velocity and acceleration are those of a rigid body:
 ``v = v_p + ω × r``, ``a = a_p + α × r + ω × (ω × r)``, ``r = Q(Δθ)·(W0 - L0)``,
-``ω = θ'·axis``.  Docs: docs/spec/conveyor-extensions.md, "Group / TCP as master".
+``ω = θ'·axis``.  Spec: docs/spec/conveyor-extensions.md#4.
 """
 
 from __future__ import annotations
