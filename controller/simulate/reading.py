@@ -23,9 +23,9 @@ from ..errors import ConfigError, ParameterError
 from ..tracking import PLANNERS, Limits, Mode, Rates, SoftMcOptions, TrackerParams
 from ..tracking.types import DEFAULT_ROT, DEFAULT_TRANS
 
-__all__ = ["MAX_SAMPLES", "MISSING", "Ctx", "CsvMaster", "EncoderSpec", "Node", "SampledRun",
-           "Segment", "SegmentMaster", "check_number", "describe", "segment_master",
-           "tracker_params", "unit_vector"]
+__all__ = ["MAX_POSITION_MM", "MAX_SAMPLES", "MISSING", "Ctx", "CsvMaster", "EncoderSpec",
+           "Node", "SampledRun", "Segment", "SegmentMaster", "check_number", "describe",
+           "segment_master", "tracker_params", "unit_vector"]
 
 #: upper bound on duration_s / sample_time_s (a typo should not run for hours)
 MAX_SAMPLES = 1_000_000
