@@ -100,3 +100,57 @@ def test_nextitem_skips_untracked_types_and_the_link_takes_the_first_tracked_one
     assert r.link_for(f).item is d
     r.track_types(f, None)             # every type again: a is the oldest
     assert r.tracked_types(f) is None and r.buffer.current(f.name) is a
+
+
+# -- in scenario files ----------------------------------------------------------------------
+SCENARIO = """
+duration_s: 6.0
+tracker: {sample_time_s: 0.002, planner: softmc, sync_trans: {vel: 1500, acc: 12000, jerk: 300000}}
+conveyor:
+  frame: {name: belt, window: {upstream: 100, downstream: 1200}}
+  master: {speed: 200}
+  items: {trigger_times: [0.1, 0.6, 1.1, 1.6], types: [1, 2, 1, 2]}
+  robot: {name: r, start: [300, 300, 100], track_types: [2]}
+  program: {approach_mm: 40, dwell_s: 0.1}
+"""
+
+
+def test_scenario_items_with_types_and_a_robot_tracking_some(tmp_path):
+    from controller.simulate import format_summary, run_scenario
+    from controller.simulate.conveyor import write_logs
+
+    p = tmp_path / "s.yaml"
+    p.write_text(SCENARIO)
+    r = run_scenario(p)
+    by_type = {rec.item_id: (rec.item_type, rec.status.value) for rec in r.records}
+    assert [t for t, _ in by_type.values()] == [1, 2, 1, 2]
+    assert all(st in ("ignored", "pending") for t, st in by_type.values() if t == 1)
+    assert set(r.picks) == {i for i, (t, _) in by_type.items() if t == 2}
+    assert not r.missed
+    assert f"{r.count('ignored')} ignored (type not tracked)" in format_summary(r)
+    assert r.count("ignored") >= 1
+    # the trigger log keeps the types: a replay gives the same picks
+    trig, _ = write_logs(r, tmp_path / "rec")
+    assert trig.read_text().splitlines()[0].endswith(",type")
+    p2 = tmp_path / "replay.yaml"
+    p2.write_text(SCENARIO.replace(
+        "items: {trigger_times: [0.1, 0.6, 1.1, 1.6], types: [1, 2, 1, 2]}",
+        f"items: {{log: {trig.name}}}"))
+    r2 = run_scenario(p2)
+    assert r2.picks == r.picks
+
+
+@pytest.mark.parametrize("old, new, key", [
+    ("types: [1, 2, 1, 2]", "types: [1, 2]", "conveyor.items.types"),
+    ("types: [1, 2, 1, 2]", "types: [1, 2, 1, 300]", "conveyor.items.types[3]"),
+    ("track_types: [2]", "track_types: []", "conveyor.robot.track_types"),
+])
+def test_scenario_type_errors_name_the_key(tmp_path, old, new, key):
+    from controller.errors import ConfigError
+    from controller.simulate import run_scenario
+
+    p = tmp_path / "s.yaml"
+    p.write_text(SCENARIO.replace(old, new))
+    with pytest.raises(ConfigError) as exc:
+        run_scenario(p)
+    assert exc.value.key == key and exc.value.line

@@ -35,7 +35,8 @@ units" (what the conveyor's axis counts: mm of belt, deg of table, ...).  ``*`` 
       items*:                        # the item sensor: one of
         trigger_times: [0.1, 0.9]    #   sensor times [s]
         radius_offsets_mm: [0, -30]  #   optional, one per time (rotary: dR)
-        csv: items.csv               #   time_s[, dr_mm][, inverse]
+        types: [1, 2]                #   optional, the item type per time (0...255; default 0)
+        csv: items.csv               #   time_s[, dr_mm][, inverse][, type]
         log: triggers.csv            #   replay: sample, robot, frame, values, dr_mm, inverse
                                      #   (robot, frame: this scenario's names, else an error)
       robot*:
@@ -45,6 +46,7 @@ units" (what the conveyor's axis counts: mm of belt, deg of table, ...).  ``*`` 
         tool: {position: [..], axis: [..], angle_deg: ..}    # tool frame
         slave: 5                     # 3 | 5 (the program: see PickProgram)
         buffer_capacity: 32
+        track_types: [1]             # the item types it tracks (default: every type)
         motion: {vel: 800, acc: 8000, jerk: 200000, rot_vel: 180, rot_acc: 1800,
                  rot_jerk: 36000}
       program:                       # the pick program (see PickProgram)
@@ -134,6 +136,7 @@ class ItemSpec:
     inverse: bool = False
     sample: int | None = None
     values: tuple[float, ...] | None = None
+    item_type: int = 0
 
 
 @dataclass(frozen=True)
@@ -145,6 +148,8 @@ class RobotSpec:
     slave: int = 5
     buffer_capacity: int = 32
     motion: MotionLimits = MotionLimits()
+    #: the item types the robot tracks on the frame (None: every type)
+    track_types: frozenset[int] | None = None
 
 
 @dataclass(frozen=True)
@@ -288,7 +293,7 @@ def _master(node) -> MasterSpec:
 
 def _items(node, duration_s: float, n_samples: int, frame: FrameSpec,
            robot: str) -> tuple[ItemSpec, ...]:
-    node.check_keys(("trigger_times", "radius_offsets_mm", "csv", "log"))
+    node.check_keys(("trigger_times", "radius_offsets_mm", "types", "csv", "log"))
     kinds = [k for k in ("trigger_times", "csv", "log") if node.has(k)]
     if len(kinds) != 1:
         raise node.error(kinds[1] if len(kinds) > 1 else "trigger_times",
@@ -308,9 +313,21 @@ def _items(node, duration_s: float, n_samples: int, frame: FrameSpec,
             drs = [check_number(v, lambda m, line=line, path=path:
                                  node.ctx.error(m, line, path), unit="mm")
                    for v, line, path in items]
+        types = [0] * len(times)
+        if node.has("types"):
+            items = node.items("types")
+            if len(items) != len(times):
+                raise node.error("types", f"must give one item type per trigger time "
+                                          f"({len(times)}), got {len(items)}")
+            types = [check_number(v, lambda m, line=line, path=path:
+                                  node.ctx.error(m, line, path), lo=0, hi=255, integer=True)
+                     for v, line, path in items]
         if times != sorted(times):
             raise node.error("trigger_times", "times must be in increasing order")
-        return tuple(ItemSpec(t, dr) for t, dr in zip(times, drs))
+        return tuple(ItemSpec(t, dr, item_type=ty) for t, dr, ty in zip(times, drs, types))
+    if node.has("types"):
+        raise node.error("types", "goes with trigger_times (a CSV has a type column, a log "
+                                  "its own)")
     name = node.string(kinds[0])
     path = Path(name)
     if not path.is_absolute():
@@ -333,7 +350,8 @@ def _items(node, duration_s: float, n_samples: int, frame: FrameSpec,
                 raise ConfigError(f"expected 1 master value (the frame {frame.name!r} has one "
                                   f"source), got {len(e.values)}", file=str(path),
                                   line=e.line, key="values")
-        return tuple(ItemSpec(0.0, e.dr_mm, e.inverse, e.sample, e.values) for e in events)
+        return tuple(ItemSpec(0.0, e.dr_mm, e.inverse, e.sample, e.values, e.item_type)
+                     for e in events)
     try:
         text = path.read_text(encoding="utf-8")
     except OSError as exc:
@@ -346,7 +364,7 @@ def _items(node, duration_s: float, n_samples: int, frame: FrameSpec,
                           line=1)
     hl, header = rows[0]
     cols = [c.strip().lower() for c in header]
-    allowed = ("time_s", "dr_mm", "inverse")
+    allowed = ("time_s", "dr_mm", "inverse", "type")
     for c in cols:
         if c not in allowed:
             raise ConfigError(f"unknown column (columns: {', '.join(allowed)})",
@@ -371,12 +389,18 @@ def _items(node, duration_s: float, n_samples: int, frame: FrameSpec,
             raise ConfigError(f"time {t!r} s must be in [0...{duration_s:g}) s and not before "
                               "the previous row", file=str(path), line=line, key="time_s")
         prev = t
-        out.append(ItemSpec(t, vals.get("dr_mm", 0.0), bool(vals.get("inverse", 0.0))))
+        ty = vals.get("type", 0.0)
+        if not (ty == int(ty) and 0 <= ty <= 255):
+            raise ConfigError(f"type {ty!r} must be an integer in [0...255]", file=str(path),
+                              line=line, key="type")
+        out.append(ItemSpec(t, vals.get("dr_mm", 0.0), bool(vals.get("inverse", 0.0)),
+                            item_type=int(ty)))
     return tuple(out)
 
 
 def _robot(node) -> RobotSpec:
-    node.check_keys(("name", "start", "base", "tool", "slave", "buffer_capacity", "motion"))
+    node.check_keys(("name", "start", "base", "tool", "slave", "buffer_capacity", "motion",
+                     "track_types"))
     slave = node.number("slave", 5, integer=True)
     if slave not in (3, 5):
         raise node.error("slave", f"value {slave!r} is out of range: must be 3 or 5")
@@ -387,10 +411,19 @@ def _robot(node) -> RobotSpec:
         mn.check_keys(names)
         ml = MotionLimits(**{k: mn.number(k, getattr(ml, k), lo=0.0, lo_open=True)
                              for k in names})
+    types = None
+    if node.has("track_types"):
+        types = frozenset(check_number(v, lambda m, line=line, path=path:
+                                       node.ctx.error(m, line, path), lo=0, hi=255,
+                                       integer=True)
+                          for v, line, path in node.items("track_types"))
+        if not types:
+            raise node.error("track_types", "must list at least one item type (leave the key "
+                                            "out to track every type)")
     return RobotSpec(node.string("name", "robot"), _location(node, "start"),
                      _location(node, "base", Location()), _location(node, "tool", Location()),
                      slave, node.number("buffer_capacity", 32, lo=1, hi=100000, integer=True),
-                     ml)
+                     ml, types)
 
 
 def _program(node) -> ProgramSpec:
@@ -667,6 +700,8 @@ def build_conveyor(sc: ConveyorScenario) -> ConveyorSetup:
     robot = RobotGroup(rs.name, sc.params.with_(mode=Mode(rs.slave)), start=rs.start,
                        base=rs.base, tool=rs.tool, motion_limits=rs.motion,
                        buffer_capacity=rs.buffer_capacity, default_mode=rs.slave)
+    if rs.track_types is not None:
+        robot.track_types(frame, rs.track_types)
     cell = ConveyorCell([frame], [robot])
     program = PickProgram(robot, frame, sc.program, rs.slave)
     return ConveyorSetup(cell, frame, robot, program, source, fn, per_unit)
@@ -716,12 +751,13 @@ def run_conveyor(sc: ConveyorScenario) -> ConveyorResult:
             else:
                 vals = (fn(it.time_s)[0],)
             try:
-                e = robot.trigger(frame, values=vals, dr_mm=it.dr_mm, inverse=it.inverse)
+                e = robot.trigger(frame, values=vals, dr_mm=it.dr_mm, inverse=it.inverse,
+                                  item_type=it.item_type)
             except TriggerBufferFull as exc:   # reported, never silently dropped
                 rejected.append(Event(k, "trigger_rejected", frame.name, message=str(exc)))
                 continue
             triggers.append(TriggerEvent(k, robot.name, frame.name, e.values, e.dr_mm,
-                                         e.inverse))
+                                         e.inverse, e.item_type))
 
     sp_pos = [robot.setpoint.pos]
     sp_ori = [robot.setpoint.ori]

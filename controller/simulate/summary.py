@@ -189,7 +189,9 @@ def format_conveyor_summary(result) -> str:
     skipped_pred = len(r.skipped)
     lines.append(f"Items      {n} triggered: {r.caught} caught, {len(r.picks)} picked, "
                  f"{r.missed} missed ({ITEM_MISSED_CODE}), {r.count('skipped')} skipped "
-                 f"({skipped_pred} by the prediction), {r.count('lost')} lost")
+                 f"({skipped_pred} by the prediction), {r.count('lost')} lost"
+                 + (f", {r.count('ignored')} ignored (type not tracked)"
+                    if r.count('ignored') else ""))
     lines.append("")
     rows = []
     for rec in r.records:
