@@ -97,3 +97,13 @@ def test_command_errors(tmp_path, capsys):
         capacity(load_scenario(EXAMPLE), [100.0], [0.0])
     with pytest.raises(ConfigError):
         capacity(load_scenario(other), [100.0], [100.0])
+
+
+def test_window_placement_is_a_sweep_dimension(scenario):
+    """Shifting the window 500 mm downstream (further from the robot's place position):
+    longer cycles, so 450 mm/s at 800 mm spacing no longer picks every item."""
+    r = capacity(scenario, [450.0], [800.0], [0.0, 500.0], workers=2)
+    assert r.ok.shape == (2, 1, 1)
+    assert r.point(450.0, 800.0, 0.0)[:2] == (True, "")
+    assert r.point(450.0, 800.0, 500.0)[:2] == (False, "pick time")
+    assert r.boundary == [[450.0], [None]]
