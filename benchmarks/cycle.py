@@ -47,14 +47,14 @@ if str(ROOT) not in sys.path:
 from dataclasses import replace
 
 import numpy as np
+from controller.canopen.apps.demo import PhotoEye, PickPlace
+from controller.canopen.apps.report import timing_summary
 
 from controller.canopen.config import load_bus_config
-from controller.canopen.cycle import Controller
-from controller.canopen.demo import PhotoEye, PickPlace
-from controller.canopen.report import timing_summary
+from controller.canopen.io.transport import RealtimeTransport, virtual_bus
+from controller.canopen.master.cycle import Controller
+from controller.canopen.slave.world import SimWorld
 from controller.canopen.testing import bus_yml
-from controller.canopen.transport import RealtimeTransport, virtual_bus
-from controller.canopen.world import SimWorld
 
 
 def pct(values, q):

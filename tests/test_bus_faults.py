@@ -12,8 +12,8 @@ import random
 import can
 import pytest
 
-from controller.canopen.app import ConveyorFollow
-from controller.canopen.cia402 import State
+from controller.canopen.master.app import ConveyorFollow
+from controller.canopen.protocol.cia402 import State
 from controller.canopen.config import load_bus_config
 from controller.canopen.testing import bus_yml, load, stepped
 
@@ -127,14 +127,14 @@ def test_second_sync_producer_is_an_event(make):
 @pytest.mark.xfail(strict=True, reason=ISSUE + "EMCY 00xxh (not 0000h) is labelled "
                    "'Error Reset / No Error'")
 def test_emcy_00xx_is_not_labelled_no_error():
-    from controller.canopen.supervision import Emcy
+    from controller.canopen.master.supervision import Emcy
     e = Emcy("node 11 (x)", 11, 0x0010, 0x01, b"\0" * 5, 0)
     assert "no error" not in str(e).lower()
 
 
 @pytest.mark.xfail(strict=True, reason=ISSUE + "cantrack's text for 8240h is '(Monitoring)'")
 def test_emcy_8240h_has_its_cia301_text():
-    from controller.canopen.supervision import Emcy
+    from controller.canopen.master.supervision import Emcy
     e = Emcy("node 4 (io)", 4, 0x8240, 0x11, b"\0" * 5, 0)
     assert "unexpected sync data length" in str(e).lower()
 
@@ -154,7 +154,7 @@ def test_short_sdo_request_to_a_simulated_device_is_aborted(make, caplog):
 @pytest.mark.xfail(strict=True, reason=ISSUE + "the candump log names the channel "
                    "cantrack-sim-<pid>-<n> (more than 15 characters, canplayer refuses it)")
 def test_bus_log_channel_name_fits_canplayer(tmp_path):
-    from controller.canopen.world import SimWorld
+    from controller.canopen.slave.world import SimWorld
     cfg = load(tmp_path)
     log = tmp_path / "bus.log"
     with SimWorld(cfg, bus_log=log) as world:
@@ -167,7 +167,7 @@ def test_bus_log_channel_name_fits_canplayer(tmp_path):
 @pytest.mark.xfail(strict=True, reason=ISSUE + "event_deadline on an RPDO is accepted and "
                    "silently dropped")
 def test_event_deadline_is_applied(tmp_path):
-    from controller.canopen.concise import concise_configuration
+    from controller.canopen.config.concise import concise_configuration
     from controller.canopen.testing import bus_yml_text
     text = bus_yml_text().replace("  rpdo:\n    1:\n      enabled: true\n",
                                   "  rpdo:\n    1:\n      enabled: true\n"
@@ -193,7 +193,7 @@ def test_restricted_or_foreign_cob_id_is_refused(tmp_path, cob):
 @pytest.mark.xfail(strict=True, reason=ISSUE + "1019h (sync_overflow) is never written to "
                    "the slaves")
 def test_1019h_written_to_every_sync_consumer(tmp_path):
-    from controller.canopen.concise import concise_configuration
+    from controller.canopen.config.concise import concise_configuration
     cfg = load(tmp_path)
     c = concise_configuration(cfg)
     for name in ("encoder", "x", "y"):

@@ -8,11 +8,11 @@ from __future__ import annotations
 
 import pytest
 
-from controller.canopen.boot import BootError, cantrack_sdos, interpolation_period
-from controller.canopen.concise import concise_configuration
 from controller.canopen.config import load_bus_config
-from controller.canopen.devices.base import NMT_OPERATIONAL
-from controller.canopen.sdo import SdoTimeoutError
+from controller.canopen.config.concise import concise_configuration
+from controller.canopen.master.boot import BootError, cantrack_sdos, interpolation_period
+from controller.canopen.protocol.sdo import SdoTimeoutError
+from controller.canopen.slave.node import NMT_OPERATIONAL
 from controller.canopen.testing import bus_yml, bus_yml_text, load
 
 

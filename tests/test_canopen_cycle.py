@@ -7,10 +7,10 @@ import struct
 
 import pytest
 
-from controller.canopen import cia402
-from controller.canopen.app import ConveyorFollow
-from controller.canopen.cia402 import State
-from controller.canopen.cycle import Phase
+from controller.canopen.master.app import ConveyorFollow
+from controller.canopen.master.cycle import Phase
+from controller.canopen.protocol import cia402
+from controller.canopen.protocol.cia402 import State
 from controller.canopen.testing import load, stepped
 from controller.kinematics import CountsConverter, EncoderScale, create
 from controller.tracking import MasterEstimator, MotionState, Tracker, TrackState

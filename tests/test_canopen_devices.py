@@ -10,11 +10,11 @@ import struct
 
 import pytest
 
-from controller.canopen import cia402
-from controller.canopen.cia402 import State
-from controller.canopen.sdo import SdoAbortError, SdoClient
+from controller.canopen.protocol import cia402
+from controller.canopen.protocol.cia402 import State
+from controller.canopen.protocol.sdo import SdoAbortError, SdoClient
+from controller.canopen.slave.world import SimWorld
 from controller.canopen.testing import load
-from controller.canopen.world import SimWorld
 
 MS = 1_000_000
 

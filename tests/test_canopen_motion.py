@@ -13,9 +13,9 @@ import struct
 from pathlib import Path
 
 import pytest
+from controller.canopen.apps import axis_motion as am
 
 from controller import cli
-from controller.canopen import axis_motion as am
 from controller.canopen.config import load_bus_config
 from controller.canopen.testing import bus_yml_text
 from controller.errors import ConfigError
@@ -355,7 +355,7 @@ def test_gotoy_sets_the_drive_position(tmp_path, initial, offset):
 @pytest.mark.parametrize("offset", [0.0, 2.5])
 def test_move_to_home_after_gotoy_same_session(tmp_path, offset):
     # the simulated devices live as long as the session: home, then move in the same one
-    from controller.canopen.world import SimWorld
+    from controller.canopen.slave.world import SimWorld
     cfg = cfg_of(tmp_path, homing=GOTOY.replace("}", f", home_offset: {offset}}}"))
     ax = am._axis(cfg, "y")
     with SimWorld(cfg) as world:
@@ -393,7 +393,7 @@ def test_gotoy_set_position_error(tmp_path, monkeypatch):
 # -- --max-time: a controlled stop, not a quick stop (audit gap 1) -----------------------------
 def _session(cfg, jobs, max_time_s):
     """Run ``jobs`` on the simulated devices; (reports, controller)."""
-    from controller.canopen.world import SimWorld
+    from controller.canopen.slave.world import SimWorld
     with SimWorld(cfg) as world:
         ctl = am.MotionController(cfg, world.transport, jobs)
         return am.run_jobs(ctl, max_time_s), ctl
@@ -499,7 +499,7 @@ def test_max_time_drive_homing(tmp_path):
 
 def test_stop_between_jobs_next_not_started(tmp_path):
     # the stop is requested right after x is done: y does not start, and its report says so
-    from controller.canopen.world import SimWorld
+    from controller.canopen.slave.world import SimWorld
     cfg = cfg_of(tmp_path, x_homing="{method: drive, drive_method: 35, timeout_s: 1}")
 
     def on_cycle(ctl, rec):
@@ -620,7 +620,7 @@ PROBE_TPDO = """    3:
 def _home_y(tmp_path, *, touch_probe: bool, initial: int = 300000, offset: float = 0.0,
             sim: str = PROBE_SIM, record: bool = False, probe_tpdo: bool = False):
     """Home y in a session of its own: (report, drive, recorded frames)."""
-    from controller.canopen.world import SimWorld
+    from controller.canopen.slave.world import SimWorld
     homing = GOTOY.replace("}", f", home_offset: {offset}, "
                                 f"touch_probe: {'true' if touch_probe else 'false'}}}")
     text = yml_text(initial=initial, homing=homing, sim=sim)
@@ -751,7 +751,7 @@ def test_touch_probe_config_errors(tmp_path, monkeypatch):
     p.write_text(yml_text(homing="{method: gotoy, touch_prob: true}"))
     with pytest.raises(ConfigError, match="touch_prob.*did you mean 'touch_probe'"):
         load_bus_config(p)
-    from controller.canopen import tracking_config as tc
+    from controller.canopen.config import tracking as tc
     monkeypatch.setattr(tc, "TOUCH_PROBE_OBJECTS",
                         tc.TOUCH_PROBE_OBJECTS + ((0x60BB, "touch probe 1 negative edge"),))
     p.write_text(yml_text(homing="{method: gotoy, touch_probe: true}"))
@@ -763,7 +763,7 @@ def test_touch_probe_config_errors(tmp_path, monkeypatch):
 
 def test_max_time_while_arming_the_touch_probe(tmp_path):
     # time is up in the cycle the probe would be armed: nothing moved, the job ends there
-    from controller.canopen.world import SimWorld
+    from controller.canopen.slave.world import SimWorld
     cfg = cfg_of(tmp_path, homing=GOTOY.replace("}", ", touch_probe: true}"), sim=PROBE_SIM)
     with SimWorld(cfg) as world:
         ctl = am.MotionController(cfg, world.transport, [am.GotoYJob(am._axis(cfg, "y"),

@@ -11,10 +11,10 @@ import math
 
 import pytest
 
-from controller.canopen.app import ConveyorFollow
-from controller.canopen.cia402 import State
 from controller.canopen.config import load_bus_config
-from controller.canopen.cycle import EnableError, Phase
+from controller.canopen.master.app import ConveyorFollow
+from controller.canopen.master.cycle import EnableError, Phase
+from controller.canopen.protocol.cia402 import State
 from controller.canopen.testing import bus_yml, bus_yml_text, load, stepped
 from controller.tracking import TrackState
 

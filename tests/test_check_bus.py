@@ -10,14 +10,13 @@ import json
 
 import pytest
 
-from controller.canopen import cmd_check_bus
-from controller.canopen.checkbus import check_bus, parse_scan
-from controller.canopen.clock import RealtimeClock
 from controller.canopen.config import load_bus_config
-from controller.canopen.devices.rack import DeviceRack
+from controller.canopen.io.clock import RealtimeClock
+from controller.canopen.io.transport import DeviceThread, virtual_bus
+from controller.canopen.master.checkbus import check_bus, parse_scan
+from controller.canopen.slave.rack import DeviceRack
 from controller.canopen.testing import bus_yml, load
-from controller.canopen.transport import DeviceThread, virtual_bus
-
+from controller.cli import check_bus as cmd_check_bus
 
 
 @pytest.fixture

@@ -15,8 +15,8 @@ from pathlib import Path
 
 import pytest
 
-from controller.canopen.concise import concise_configuration
 from controller.canopen.config import load_bus_config
+from controller.canopen.config.concise import concise_configuration
 from controller.canopen.testing import bus_yml, bus_yml_text
 from controller.errors import ConfigError
 

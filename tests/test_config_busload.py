@@ -7,8 +7,14 @@ from pathlib import Path
 
 import pytest
 
-from controller.canopen.busload import MAX_LOAD, WARN_LOAD, bus_load, check_bus_load, frame_bits
 from controller.canopen.config import load_bus_config
+from controller.canopen.config.busload import (
+    MAX_LOAD,
+    WARN_LOAD,
+    bus_load,
+    check_bus_load,
+    frame_bits,
+)
 from controller.canopen.testing import bus_yml, stepped
 from controller.errors import ConfigError
 

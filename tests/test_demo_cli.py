@@ -16,12 +16,13 @@ from pathlib import Path
 
 import can
 
-from controller.canopen import cmd_demo, cmd_sim
-from controller.canopen.app import ConveyorFollow
 from controller.canopen.config import load_bus_config
-from controller.canopen.cycle import Controller
+from controller.canopen.io.transport import RealtimeTransport, virtual_bus
+from controller.canopen.master.app import ConveyorFollow
+from controller.canopen.master.cycle import Controller
 from controller.canopen.testing import bus_yml, bus_yml_text
-from controller.canopen.transport import RealtimeTransport, virtual_bus
+from controller.cli import demo as cmd_demo
+from controller.cli import sim_devices as cmd_sim
 from controller.testing.e2e import wait_file
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -1,6 +1,6 @@
 """``cantrack demo`` runs on the softMC conveyor model (:mod:`controller.conveyor`).
 
-The demo's application (:class:`controller.canopen.demo.PickPlace`) is a RobotGroup on a
+The demo's application (:class:`controller.canopen.apps.demo.PickPlace`) is a RobotGroup on a
 linear MovingFrame fed by the controller's belt estimate: photo-eye edges are TRIGGERs in the
 robot's trigger buffer, the frame's window decides when tracking starts and reports missed
 items (30238), NEXTITEM after each pick, and the robot's setpoint is what goes to the drives.
@@ -11,11 +11,12 @@ from __future__ import annotations
 import json
 from dataclasses import replace
 
-from controller.canopen import cmd_demo
+from controller.canopen.apps.demo import PhotoEye, PickPlace, Step
+
 from controller.canopen.config import load_bus_config
-from controller.canopen.cycle import Controller, Phase
-from controller.canopen.demo import PhotoEye, PickPlace, Step
-from controller.canopen.world import SimWorld
+from controller.canopen.master.cycle import Controller, Phase
+from controller.canopen.slave.world import SimWorld
+from controller.cli import demo as cmd_demo
 from controller.conveyor import ITEM_MISSED_CODE, LINEAR, ItemStatus, MovingFrame, RobotGroup
 
 

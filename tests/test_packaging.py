@@ -50,7 +50,7 @@ def test_the_wheel_runs_the_demo_configuration(tmp_path):
     site = tmp_path / "site"
     zipfile.ZipFile(wheel).extractall(site)
     code = ("import controller, sys\n"
-            "from controller.canopen.cmd_demo import DEFAULT_CONFIG\n"
+            "from controller.cli.demo import DEFAULT_CONFIG\n"
             "from controller.canopen.config import load_bus_config\n"
             "cfg = load_bus_config(DEFAULT_CONFIG)\n"
             "print(controller.__file__); print(DEFAULT_CONFIG); print(sorted(cfg.slaves))\n")

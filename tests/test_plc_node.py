@@ -1,4 +1,4 @@
-"""The controller as a CANopen node for a PLC (controller/canopen/plc_node.py), in stepped
+"""The controller as a CANopen node for a PLC (controller/canopen/master/plc_node.py), in stepped
 time: a PLC (the project's SDO client on its own port of the same virtual bus) reads and
 writes the controller's objects during a run; the event-driven TPDOs on the bus decode (with
 python canopen's own PDO decoding of the EDS mapping) to the tracker's values."""
@@ -12,18 +12,18 @@ from dataclasses import replace
 
 import canopen
 import pytest
+from controller.canopen.apps.demo import PhotoEye, PickPlace
 
-from controller.canopen import cmd_demo
-from controller.canopen import od as odm
-from controller.canopen.app import ConveyorFollow
 from controller.canopen.config import load_bus_config
-from controller.canopen.cycle import Controller, Phase
-from controller.canopen.demo import PhotoEye, PickPlace
-from controller.canopen.plc_node import EDS, PlcNode
-from controller.canopen.sdo import SdoAbortError, SdoClient
+from controller.canopen.io.transport import SteppedTransport
+from controller.canopen.master.app import ConveyorFollow
+from controller.canopen.master.cycle import Controller, Phase
+from controller.canopen.master.plc_node import EDS, PlcNode
+from controller.canopen.protocol import od as odm
+from controller.canopen.protocol.sdo import SdoAbortError, SdoClient
+from controller.canopen.slave.world import SimWorld
 from controller.canopen.testing import load, stepped
-from controller.canopen.transport import SteppedTransport
-from controller.canopen.world import SimWorld
+from controller.cli import demo as cmd_demo
 from controller.tracking import TrackState
 
 OFFSET = (420.0, 30.0, 0.0)
@@ -362,7 +362,7 @@ def test_synchronous_tpdo(rig):
 def test_demo_plc_disengage_misses_the_item(tmp_path):
     """The PLC disengages while the demo follows an item: that item is missed (de-synced),
     the next one is caught and placed."""
-    from controller.canopen.demo import Step
+    from controller.canopen.apps.demo import Step
     with _plc_demo(items=2) as (world, ctl, app, client):
         sent = []
 

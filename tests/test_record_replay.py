@@ -11,14 +11,15 @@ from pathlib import Path
 
 import can
 import pytest
+from controller.canopen.apps import record as rr
 
-from controller.canopen import cmd_record, cmd_replay
-from controller.canopen import record as rr
-from controller.canopen.app import ConveyorFollow
-from controller.canopen.cycle import Controller
+from controller.canopen.master.app import ConveyorFollow
+from controller.canopen.master.cycle import Controller
+from controller.canopen.slave.world import SimWorld
 from controller.canopen.testing import bus_yml, load
-from controller.canopen.world import SimWorld
 from controller.cli import main as cli_main
+from controller.cli import record as cmd_record
+from controller.cli import replay as cmd_replay
 from controller.errors import CanError
 from controller.testing.e2e import wait_file
 from controller.tracking import Mode

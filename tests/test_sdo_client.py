@@ -1,4 +1,4 @@
-"""The controller's SDO client (controller.canopen.sdo): expedited and segmented transfers
+"""The controller's SDO client (controller.canopen.protocol.sdo): expedited and segmented transfers
 against python canopen's SDO server (the simulated devices are canopen LocalNodes), on the
 stepped virtual bus; the frames on the bus checked against CiA 301."""
 
@@ -9,10 +9,10 @@ import struct
 import pytest
 from canopen.objectdictionary import VISIBLE_STRING, ODVariable
 
-from controller.canopen.sdo import ABORT_TOGGLE, SdoClient
+from controller.canopen.io.transport import SteppedTransport
+from controller.canopen.protocol.sdo import ABORT_TOGGLE, SdoClient
+from controller.canopen.slave.world import SimWorld
 from controller.canopen.testing import load
-from controller.canopen.transport import SteppedTransport
-from controller.canopen.world import SimWorld
 from controller.errors import CanError
 
 SERVO = 11

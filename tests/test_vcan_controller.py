@@ -372,11 +372,11 @@ def test_run_sigterm_during_boot_is_clean(tmp_path):
 
 _IN_ONE_PROCESS = """
 import sys
-from controller.canopen import cmd_run
-from controller.canopen.clock import RealtimeClock
+from controller.cli import run as cmd_run
+from controller.canopen.io.clock import RealtimeClock
 from controller.canopen.config import load_bus_config
-from controller.canopen.devices.rack import DeviceRack
-from controller.canopen.transport import DeviceThread, virtual_bus
+from controller.canopen.slave.rack import DeviceRack
+from controller.canopen.io.transport import DeviceThread, virtual_bus
 cfg = load_bus_config(sys.argv[1])
 clock = RealtimeClock()
 rack = DeviceRack.from_config(cfg, virtual_bus("t3"), clock)

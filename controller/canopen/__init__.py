@@ -1,24 +1,18 @@
-"""The CANopen shell of cantrack: configuration, boot, cycle, supervision, simulated devices.
+"""The CANopen shell of cantrack, in layers (docs/architecture.md; each imports only those
+below it, checked by tests/test_architecture.py):
 
-Modules (one concept each):
+- :mod:`.io` — clocks, transports (stepped / real time), opening a real bus, atomic files;
+- :mod:`.protocol` — CiA 301/402: object dictionaries, PDO codec, SDO client, 402 state machine;
+- :mod:`.config` — bus.yml (Lely dcfgen format + ``.tracking``/``.simulation``/``.demo``),
+  the concise DCF, the bus load;
+- :mod:`.slave` — the slave-node engine and the simulated encoder and drives, the simulated bus;
+- :mod:`.master` — boot, the cyclic controller, SYNC, supervision, events, axis and master
+  I/O, check-bus, the controller's own (PLC) node;
+- :mod:`.apps` — what is tracked or moved: conveyor pick-and-place, axis jobs, record and
+  replay, run reports;
+- :mod:`.testing` — test support (stepped worlds for the test suite).
 
-- configuration: :mod:`.config` (bus.yml = Lely dcfgen format + dot sections, strict),
-  :mod:`.tracking_config` (``.tracking``), :mod:`.demo_config` (``.demo``),
-  :mod:`.yamlmarks` (YAML with line marks, key-by-key validation), :mod:`.od` (EDS object
-  dictionaries), :mod:`.concise` (the SDO writes dcfgen would generate), :mod:`.pdo`
-  (configured PDOs, packing), :mod:`.busload` (worst-case bus load);
-- protocol pieces: :mod:`.cia402` (drive state machine, shared with the simulated drive),
-  :mod:`.sdo` (expedited SDO client), :mod:`.sync` (SYNC producer with counter),
-  :mod:`.supervision` (heartbeat and EMCY consumers), :mod:`.events`;
-- time and frames: :mod:`.clock` (stepped / real-time), :mod:`.transport` (stepped world,
-  real-time transport, device thread), :mod:`.canbus` (opening a real bus like python-can's
-  tools), :mod:`.world` (a simulated bus: devices + transport + bus log);
-- the controller: :mod:`.boot`, :mod:`.axisio` (one drive's PDOs), :mod:`.masterio` (the
-  encoder input and estimator), :mod:`.app` (what is tracked), :mod:`.cycle` (the cyclic
-  controller), :mod:`.report` (status line, summary, telemetry, plot);
-- :mod:`.devices` — simulated encoder and drives (python canopen LocalNodes);
-- :mod:`.demo` — the pick-and-place sequence; ``cmd_demo``, ``cmd_run``, ``cmd_sim`` — the
-  ``cantrack demo``/``run``/``sim-devices`` commands; :mod:`.testing` — test support.
+The ``cantrack`` commands that use them are in :mod:`controller.cli`.
 
 Unit legend: mm, mm/s, mm/s^2 (deg for the tool angle c) at the core; counts only in
 :mod:`controller.kinematics.counts`; time in integer ns of the controller clock (``_ns``), s

@@ -12,10 +12,10 @@ from collections.abc import Iterable
 from pathlib import Path
 
 from ..resources import data_path
-from .app import Application
 from .config import BusConfig, load_bus_config
-from .cycle import Controller
-from .world import SimWorld
+from .master.app import Application
+from .master.cycle import Controller
+from .slave.world import SimWorld
 
 EDS_DIR = data_path("eds")
 

@@ -1,4 +1,4 @@
-"""The ``cantrack fmu`` sub-commands (registered by ``controller/cli.py``).
+"""The ``cantrack fmu`` sub-commands (registered by ``controller/cli/__init__.py``).
 
 Registration in the main parser::
 

@@ -109,9 +109,9 @@ class _BusBase:
         return load_bus_config(path)
 
     def _run_demo(self, cfg) -> str | None:
-        from ..canopen.cycle import Controller
-        from ..canopen.demo import PhotoEye, PickPlace
-        from ..canopen.world import SimWorld
+        from ..canopen.master.cycle import Controller
+        from ..canopen.apps.demo import PhotoEye, PickPlace
+        from ..canopen.slave.world import SimWorld
         if cfg.demo is None or cfg.tracking is None:
             return None
         demo = replace(cfg.demo, duration_s=min(cfg.demo.duration_s, self.run_s))

@@ -1,0 +1,82 @@
+"""The ``.demo:`` section of bus.yml: items on the belt, the pick and the place.
+
+Positions along the belt are coordinates u [mm] along ``.tracking.conveyor.direction``
+measured from ``.tracking.conveyor.origin`` (the window uses the same u).  Keys::
+
+    .demo:
+      items: 4                     # items the photo-eye sees
+      first_item_s: 0.3            # photo-eye trigger of the first item, after enable [s]
+      pitch_mm: [300, 450]         # belt travel between two items [mm] (seeded uniform)
+      seed: 1
+      photo_eye: 0.0               # u of the photo-eye [mm]
+      lateral: [-40, 40]           # item offset across the belt [mm] (seeded uniform)
+      angle: [-30, 30]             # item angle about z [deg] (seeded uniform)
+      pick: {height: 20, dwell_s: 0.15}      # z of the pick [mm]; follow time once SYNCED
+      place: {position: [600, 300, 80], angle: 0, dwell_s: 0.05}
+      duration_s: 30               # the demo stops at the latest after this [s]
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+from ...yamlmarks import Section
+
+if TYPE_CHECKING:
+    from .bus import BusConfig
+
+
+@dataclass(frozen=True)
+class DemoConfig:
+    items: int = 4
+    first_item_s: float = 0.3
+    pitch_mm: tuple[float, float] = (300.0, 450.0)
+    seed: int = 1
+    photo_eye: float = 0.0
+    lateral: tuple[float, float] = (-40.0, 40.0)
+    angle: tuple[float, float] = (-30.0, 30.0)
+    pick_height: float = 20.0
+    pick_dwell_s: float = 0.15
+    place_position: tuple[float, float, float] = (600.0, 300.0, 80.0)
+    place_angle: float = 0.0
+    place_dwell_s: float = 0.05
+    duration_s: float = 30.0
+
+
+def _pair(s: Section, key: str, default: tuple[float, float]) -> tuple[float, float]:
+    lo, hi = s.vector(key, 2, default)
+    if lo > hi:
+        raise s.error(key, f"must be [lo, hi] with lo <= hi, not [{lo}, {hi}]")
+    return lo, hi
+
+
+def parse_demo(s: Section, cfg: BusConfig, tracking: Any) -> DemoConfig:
+    d = DemoConfig()
+    pick = s.section("pick", {})
+    place = s.section("place", {})
+    out = DemoConfig(
+        items=s.int("items", d.items, min=1, max=100_000),
+        first_item_s=s.float("first_item_s", d.first_item_s, min=0.0),
+        pitch_mm=_pair(s, "pitch_mm", d.pitch_mm),
+        seed=s.int("seed", d.seed),
+        photo_eye=s.float("photo_eye", d.photo_eye),
+        lateral=_pair(s, "lateral", d.lateral),
+        angle=_pair(s, "angle", d.angle),
+        pick_height=pick.float("height", d.pick_height),
+        pick_dwell_s=pick.float("dwell_s", d.pick_dwell_s, min=0.0),
+        place_position=place.vector("position", 3, d.place_position),
+        place_angle=place.float("angle", d.place_angle),
+        place_dwell_s=place.float("dwell_s", d.place_dwell_s, min=0.0),
+        duration_s=s.float("duration_s", d.duration_s, above=0.0))
+    pick.finish()
+    place.finish()
+    if out.pitch_mm[0] <= 0:
+        raise s.error("pitch_mm", f"(={list(out.pitch_mm)}) must be > 0")
+    s.finish()
+    if tracking is not None:
+        start = tracking.window[0]
+        if not out.photo_eye < start:
+            raise s.error("photo_eye", f"(={out.photo_eye}) must be upstream of the window "
+                                       f"(.tracking.window.start = {start})")
+    return out

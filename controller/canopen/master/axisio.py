@@ -1,0 +1,92 @@
+"""One drive axis as the cycle sees it: its RPDO out, its TPDO in, its 402 bookkeeping.
+
+The TPDO (6041h statusword + 6064h position actual) is unpacked in the receive callback and
+kept as one tuple ``(statusword, actual_counts, t_ns, cycle)``: a snapshot taken inside the
+callback, so two values of different frames are never mixed (canopen-notes.md).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+from ..config.concise import effective_pdos
+from ..io.transport import Transport
+from ..protocol import cia402
+from ..protocol.cia402 import State
+from ..protocol.pdo import PdoCodec
+
+if TYPE_CHECKING:
+    from ...kinematics import AxisScale
+    from ..config import BusConfig
+
+
+@dataclass(slots=True)
+class DriveInput:
+    statusword: int
+    actual: int
+    t_ns: int
+    cycle: int
+
+    @property
+    def state(self) -> State | None:
+        return cia402.decode_statusword(self.statusword)
+
+
+def _configured(cfg: BusConfig, node: str, index: int, sub: int) -> float:
+    """The value the boot leaves in ``index:sub`` (bus.yml sdo list, else EDS default)."""
+    from ..protocol import od as odm
+    for w in cfg.slaves[node].sdo:
+        if (w.index, w.sub_index) == (index, sub):
+            return float(w.value)
+    var = odm.variable(cfg.ods[node], index, sub)
+    value = odm.default_value(var) if var is not None else None
+    return float(value or 0.0)
+
+
+class AxisIO:
+    def __init__(self, cfg: BusConfig, axis_name: str, node: str, scale: AxisScale,
+                 transport: Transport) -> None:
+        self.axis = axis_name
+        self.node = node
+        self.scale = scale
+        self.node_id = cfg.slaves[node].node_id
+        self.label = cfg.label(node)
+        pdos = effective_pdos(cfg)[node]
+        od = cfg.ods[node]
+        rp = pdos.find("rpdo", [(0x6040, 0), (0x607A, 0)])
+        tp = pdos.find("tpdo", [(0x6041, 0), (0x6064, 0)])
+        assert rp is not None and tp is not None  # checked by the configuration loader
+        self.rpdo = PdoCodec(rp, od)
+        self.tpdo = PdoCodec(tp, od)
+        self._cw_pos = self.rpdo.position(0x6040)
+        self._target_pos = self.rpdo.position(0x607A)
+        self._sw_pos = self.tpdo.position(0x6041)
+        self._act_pos = self.tpdo.position(0x6064)
+        self._out = [0] * len(self.rpdo.objects)
+        self.transport = transport
+        #: the drive's quick-stop deceleration 6085h [mm/s^2 | deg/s^2] (as configured)
+        self.quick_stop_decel = _configured(cfg, node, 0x6085, 0) / scale.counts_per_unit
+        self.input: DriveInput | None = None
+        self.cycle = -1  # set by the controller before each cycle's inputs arrive
+        self.controlword = 0
+        self.target = 0
+        self.hold: int | None = None  # counts held while the other drives enable
+        self.fault_resets = 0
+        transport.subscribe(tp.cob_id, self._on_tpdo)
+        self.rpdo_cob = rp.cob_id
+
+    def _on_tpdo(self, can_id: int, data: bytes, t_ns: int) -> None:
+        v = self.tpdo.unpack(data)
+        self.input = DriveInput(v[self._sw_pos], v[self._act_pos], t_ns, self.cycle)
+
+    def fresh(self, cycle: int) -> bool:
+        return self.input is not None and self.input.cycle == cycle
+
+    def send(self, controlword: int, target: int) -> None:
+        out = self._out
+        out[self._cw_pos] = controlword
+        out[self._target_pos] = target
+        self.transport.send(self.rpdo_cob, self.rpdo.pack(out))
+        self.controlword = controlword
+        self.target = target

@@ -1,0 +1,109 @@
+"""A simulated CiA 406 conveyor encoder (cantrack-encoder.eds).
+
+The belt moves with a piecewise-linear speed profile v(t) [mm/s] through the points
+(t_i, v_i) (held before the first and after the last point); its travel s(t) [mm] is the
+exact integral (trapezoids), evaluated at each SYNC, so there is no integration drift.
+
+    6004h = (initial_counts + floor(sign * s * counts_per_mm) + noise) mod 6002h
+    6030h sub1 = v * counts_per_mm, rounded and saturated to INTEGER16
+
+6002h (total measuring range) and 6003h (preset: sets the current position) are honoured
+when written over SDO.  The TPDOs go out on SYNC as configured (base class).
+
+Fault injection (besides the base class's): ``silence(True)`` (no frames at all),
+``mute_pdos(True)`` (heartbeat goes on, PDOs stop: "encoder silent"), ``noise_counts``
+(seeded Gaussian noise, standard deviation in counts, added to each sample).
+"""
+
+from __future__ import annotations
+
+import bisect
+import math
+import random
+from typing import Any
+
+from ..config.simulation import EncoderParams
+from .node import SimNode
+
+
+class SpeedProfile:
+    """Piecewise-linear speed through points; exact travel s(t) [mm]."""
+
+    def __init__(self, points: tuple[tuple[float, float], ...]) -> None:
+        if not points:
+            points = ((0.0, 0.0),)
+        self.t = [float(p[0]) for p in points]
+        self.v = [float(p[1]) for p in points]
+        self.s = [0.0]
+        for i in range(1, len(self.t)):
+            self.s.append(self.s[-1] + 0.5 * (self.v[i] + self.v[i - 1]) * (self.t[i] - self.t[i - 1]))
+        # travel before the first point at constant v[0]
+        self._s0 = -self.v[0] * self.t[0]
+
+    def speed(self, t: float) -> float:
+        i = bisect.bisect_right(self.t, t)
+        if i == 0:
+            return self.v[0]
+        if i >= len(self.t):
+            return self.v[-1]
+        t0, t1 = self.t[i - 1], self.t[i]
+        return self.v[i - 1] + (self.v[i] - self.v[i - 1]) * (t - t0) / (t1 - t0)
+
+    def travel(self, t: float) -> float:
+        """Travel since t = 0 [mm]."""
+        return self._travel(t) - self._travel(0.0)
+
+    def _travel(self, t: float) -> float:
+        i = bisect.bisect_right(self.t, t)
+        if i == 0:
+            return self.v[0] * (t - self.t[0])
+        if i >= len(self.t):
+            return self.s[-1] + self.v[-1] * (t - self.t[-1])
+        t0 = self.t[i - 1]
+        vt = self.speed(t)
+        return self.s[i - 1] + 0.5 * (self.v[i - 1] + vt) * (t - t0)
+
+
+class SimEncoder(SimNode):
+    kind = "encoder"
+
+    def __init__(self, name: str, eds: str, node_id: int, network: Any, clock: Any,
+                 params: EncoderParams | None = None, **kw: Any) -> None:
+        super().__init__(name, eds, node_id, network, clock, **kw)
+        self.params = params or EncoderParams()
+        self.profile = SpeedProfile(self.params.profile)
+        self.noise_counts = self.params.noise_counts
+        self._rng = random.Random(self.params.seed)
+        self._offset = 0  # from a preset (6003h)
+        self.sample(clock.now_ns())
+
+    def true_counts(self, t_ns: int) -> int:
+        """The unwrapped count of the belt at ``t_ns`` (without noise)."""
+        p = self.params
+        s = self.profile.travel(t_ns * 1e-9)
+        return p.initial_counts + self._offset + math.floor(p.sign * s * p.counts_per_mm)
+
+    def sample(self, t_ns: int) -> int:
+        counts = self.true_counts(t_ns)
+        if self.noise_counts:
+            counts += round(self._rng.gauss(0.0, self.noise_counts))
+        modulus = int(self.load(0x6002, 0))
+        raw = counts % modulus if modulus > 0 else counts & 0xFFFFFFFF
+        self.store(0x6004, 0, raw)
+        speed = round(self.profile.speed(t_ns * 1e-9) * self.params.counts_per_mm
+                      * self.params.sign)
+        self.store(0x6030, 1, max(-0x8000, min(0x7FFF, speed)))
+        return raw
+
+    def on_sync(self, now_ns: int) -> None:
+        self.sample(now_ns)
+
+    def on_write(self, index: int, sub: int, value: Any) -> None:
+        if index == 0x6003:
+            modulus = int(self.load(0x6002, 0))
+            if modulus and not 0 <= value < modulus:
+                from canopen.sdo import SdoAbortedError
+
+                from .node import ABORT_VALUE_RANGE
+                raise SdoAbortedError(ABORT_VALUE_RANGE)
+            self._offset += value - self.true_counts(self.clock.now_ns())

@@ -1,0 +1,108 @@
+"""All simulated devices of a bus on one python-can bus (one participant of the bus).
+
+The devices share one python canopen ``Network`` (no Notifier thread): the rack hands every
+received frame to ``Network.notify`` itself, so the same rack runs in a stepped world
+(:class:`~controller.canopen.io.transport.SteppedWorld` drains it) or in real time
+(:class:`~controller.canopen.io.transport.DeviceThread`).  Frames are stamped with the rack's
+clock (message time).  The devices do not hear each other's frames (one bus object), which
+none of them needs.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from typing import TYPE_CHECKING
+
+import can
+import canopen
+
+from ..config.simulation import DriveParams, EncoderParams
+from ..io.clock import Clock
+from ..protocol import od as odm
+from .drive import SimDrive
+from .encoder import SimEncoder
+from .node import SimNode
+
+if TYPE_CHECKING:
+    from ..config import BusConfig
+
+
+class SimNetwork(canopen.Network):
+    """A canopen Network whose sends carry the simulation clock's timestamps."""
+
+    def __init__(self, bus: can.BusABC, clock: Clock) -> None:
+        super().__init__(bus)
+        self.clock = clock
+
+    def send_message(self, can_id: int, data: bytes, remote: bool = False) -> None:
+        self.bus.send(can.Message(arbitration_id=can_id, data=bytes(data), is_extended_id=False,
+                                  is_remote_frame=remote, timestamp=self.clock.stamp()))
+
+
+class DeviceRack:
+    """Endpoint holding the simulated devices (``handle``/``next_timer_ns``/``on_timer``)."""
+
+    def __init__(self, bus: can.BusABC, clock: Clock) -> None:
+        self.bus = bus
+        self.clock = clock
+        self.network = SimNetwork(bus, clock)
+        self.devices: dict[str, SimNode] = {}
+
+    def add(self, device: SimNode) -> SimNode:
+        self.devices[device.name] = device
+        return device
+
+    def __getitem__(self, name: str) -> SimNode:
+        return self.devices[name]
+
+    def handle(self, msg: can.Message) -> None:
+        if msg.is_error_frame or msg.is_remote_frame or msg.is_extended_id:
+            return
+        self.network.notify(msg.arbitration_id, msg.data, msg.timestamp)
+
+    def next_timer_ns(self) -> int | None:
+        due = [t for d in self.devices.values() if (t := d.next_timer_ns()) is not None]
+        return min(due) if due else None
+
+    def on_timer(self, now_ns: int) -> None:
+        for d in self.devices.values():
+            t = d.next_timer_ns()
+            if t is not None and t <= now_ns:
+                d.on_timer(now_ns)
+
+    @classmethod
+    def from_config(cls, cfg: BusConfig, bus: can.BusABC, clock: Clock,
+                    present: Iterable[str] | None = None) -> DeviceRack:
+        """One simulated device per slave of ``cfg`` (by the EDS's device profile).
+
+        ``present``: the slave names to simulate (default all); parameters from the
+        ``.simulation`` section (defaults otherwise).
+        """
+        rack = cls(bus, clock)
+        sim = cfg.simulation
+        names = list(cfg.slaves) if present is None else list(present)
+        boot_delay = int((sim.boot_delay_s if sim is not None else 0.005) * 1e9)
+        for name in names:
+            slave = cfg.slaves[name]
+            prof = odm.profile(cfg.ods[name])
+            params = sim.devices.get(name) if sim is not None else None
+            if prof == odm.PROFILE_DRIVE:
+                rack.add(SimDrive(name, str(slave.dcf), slave.node_id, rack.network, clock,
+                                  params if isinstance(params, DriveParams) else None,
+                                  boot_delay_ns=boot_delay))
+            elif prof == odm.PROFILE_ENCODER:
+                if not isinstance(params, EncoderParams):
+                    params = _default_encoder(cfg)
+                rack.add(SimEncoder(name, str(slave.dcf), slave.node_id, rack.network, clock,
+                                    params, boot_delay_ns=boot_delay))
+            else:
+                rack.add(SimNode(name, str(slave.dcf), slave.node_id, rack.network, clock,
+                                 boot_delay_ns=boot_delay))
+        return rack
+
+
+def _default_encoder(cfg: BusConfig) -> EncoderParams:
+    t = cfg.tracking
+    if t is not None:
+        return EncoderParams(counts_per_mm=t.conveyor.counts_per_mm, sign=t.conveyor.sign)
+    return EncoderParams()
