@@ -9,6 +9,8 @@ import os
 import re
 import subprocess
 import sys
+from collections import Counter
+from itertools import pairwise
 from pathlib import Path
 
 import pytest
@@ -100,3 +102,47 @@ def test_05_fmu_in_fmpy():
     assert 2.0 * math.sqrt(150.0 / 20000.0) < t_sync < 1.0
     assert _figure(out, "error at the end:") == 0.0
     assert _figure(out, "velocity") == pytest.approx(300.0, abs=1e-9)
+
+
+def _frame_bits(n_bytes: int) -> int:
+    """Worst-case bits of a CAN 2.0A data frame with stuffing and interframe space."""
+    return 8 * n_bytes + 47 + (33 + 8 * n_bytes) // 4
+
+
+def test_03_bus_demo(tmp_path):
+    out = _run("03_bus_demo.py", "--items", "2", "-o", str(tmp_path))
+    T = 0.002
+    cycles = int(_figure(out, "cycles:"))
+    assert "items placed: 2 of 2" in out
+    rows = re.findall(r"^\s+(\d+)  (\w+)\s+([\d.]+)\s+([\d.]+)$", out, re.MULTILINE)
+    assert [r[1] for r in rows] == ["placed", "placed"], out
+    for _, _, sync_s, err_mm in rows:
+        assert 0.0 < float(sync_s) < 2.0
+        assert float(err_mm) < 0.05  # following an estimated, quantised belt
+    # the capture: one SYNC and one encoder TPDO (18Ah) per cycle, 2 ms apart
+    lines = (tmp_path / "bus.log").read_text().splitlines()
+    ids = Counter(line.split()[2].split("#")[0] for line in lines)
+    assert ids["080"] == cycles == ids["18A"]
+    sync_t = [float(line.split()[0].strip("()")) for line in lines if " 080#" in line]
+    gaps = {round(b - a, 6) for a, b in pairwise(sync_t)}
+    assert gaps == {T}
+    # the load the controller reports (from the configuration) against the capture's own
+    bits = sum(_frame_bits(len(line.split()[2].split("#")[1]) // 2) for line in lines)
+    measured_pct = 100.0 * bits / (cycles * T * 1e6)  # demo.yml: 1 Mbit/s
+    assert _figure(out, "bus load:") == pytest.approx(measured_pct, abs=2.0)
+
+
+def test_04_home_and_move_axis():
+    out = _run("04_home_and_move_axis.py")
+    assert re.search(r"home x: FINISHED", out), out
+    assert _figure(out, "move from:") == pytest.approx(0.0, abs=1e-4)  # homing left it at 0
+    assert re.search(r"move end: 100\.0000 mm, 6064h = 1000000 counts", out), out
+    # demo.yml's x axis: V 200 mm/s, A 2000 mm/s^2, J 50000 mm/s^3, 10000 counts/mm, 2 ms.
+    # Rest-to-rest over 100 mm with triangular pulses (docs/spec/axis.md#2.3): half-time
+    # T2 = max(sqrt(V/J), V/A) = 0.1 s, each pulse 2*T2 covering V*T2, cruise the rest at V
+    V, A, J, d = 200.0, 2000.0, 50000.0, 100.0
+    t2 = max(math.sqrt(V / J), V / A)
+    expected_s = 4.0 * t2 + (d - 2.0 * V * t2) / V
+    assert _figure(out, "move time:") == pytest.approx(expected_s, abs=0.002)
+    # one cycle's 607Ah step is at most ceil(counts_per_mm * V * T) (docs/spec/axis.md#6)
+    assert _figure(out, "largest 607Ah step per cycle:") <= math.ceil(10000 * V * 0.002)
