@@ -40,9 +40,6 @@ HEADING = re.compile(r"^(#{1,6})\s+(.*?)\s*#*\s*$")
 
 #: this file (its examples are deliberately broken)
 SELF = Path(__file__).resolve().relative_to(ROOT).as_posix()
-#: controller/canopen is being moved into sub-packages (issue 10): its two citations are
-#: replaced right after the move; until then the citation checks leave the folder out
-PENDING_MOVE = ("controller/canopen/",)
 
 
 def _tracked() -> list[str]:
@@ -103,7 +100,7 @@ def _lines(rel: str):
 
 def test_no_machine_paths_outside_tests_and_ci():
     bad = [f"{rel}:{n}: {line.strip()}" for rel in _tracked()
-           if not rel.startswith(("tests/", ".ci/") + PENDING_MOVE)
+           if not rel.startswith(("tests/", ".ci/"))
            for n, line in _lines(rel) if MACHINE_PATHS.search(line)]
     assert not bad, "paths of a development machine in tracked files:\n" + "\n".join(bad)
 
@@ -111,7 +108,7 @@ def test_no_machine_paths_outside_tests_and_ci():
 def test_shipped_text_cites_docs_spec_not_the_source_documents():
     bad = []
     for rel in _tracked():
-        if not rel.startswith(SHIPPED) or rel.startswith(PENDING_MOVE):
+        if not rel.startswith(SHIPPED):
             continue
         for n, line in _lines(rel):
             if SOURCE_CITES.search(SPEC_LINK.sub("", line)):

@@ -24,10 +24,10 @@ from collections import Counter
 from dataclasses import replace
 from pathlib import Path
 
+from controller.canopen.apps.demo import PhotoEye, PickPlace
 from controller.canopen.config import load_bus_config
-from controller.canopen.cycle import Controller
-from controller.canopen.demo import PhotoEye, PickPlace
-from controller.canopen.world import SimWorld
+from controller.canopen.master.cycle import Controller
+from controller.canopen.slave.world import SimWorld
 
 BUS_YML = Path(__file__).resolve().parents[1] / "bus" / "demo.yml"
 

@@ -21,9 +21,9 @@ import argparse
 import math
 from pathlib import Path
 
-from controller.canopen.axis_motion import home, move
+from controller.canopen.apps.axis_motion import home, move
 from controller.canopen.config import load_bus_config
-from controller.canopen.world import SimWorld
+from controller.canopen.slave.world import SimWorld
 
 BUS_YML = Path(__file__).resolve().parents[1] / "bus" / "demo.yml"
 

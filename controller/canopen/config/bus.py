@@ -5,7 +5,7 @@ strictly: every key is checked (unknown keys with the closest known one suggeste
 wrong types, values out of range and objects the slave's EDS does not have) and every error
 is a :class:`~controller.errors.ConfigError` naming the file, the line and the dotted key.
 
-Layout (dcfgen's keys; see /work/shared/notes/canopen-notes.md)::
+Layout (dcfgen's keys, docs/spec/tools.md#1)::
 
     options: {dcf_path, heartbeat_multiplier, retry_factor}
     master:  {node_id*, baudrate [kbit/s], sync_period* [us], sync_window [us],

@@ -53,7 +53,7 @@ scales).  Keys (``*`` = required)::
         planner: optimal             #   sample_time_s (= master.sync_period)
         mode: absolute               # absolute | relative | 3 | 5
         sync_trans: {vel: 2000, acc: 20000, jerk: 400000}   # and every other field; sync/
-                                     #   desync not given start at robot_max_* (item 2)
+                                     #   desync not given: robot_max_* (docs/spec/tracking.md#2.5)
       window: {start: 200, end: 900} # pick window along the conveyor direction [mm]
       cycle:
         compute_at: 0.5              # the cycle computes at the latest this fraction of the
@@ -382,7 +382,8 @@ def _limits(s: Section, default: Limits | None) -> Limits:
 def _tracker(s: Section, sample_time_s: float) -> TrackerParams:
     base = TrackerParams(sample_time_s=sample_time_s)
     changes: dict[str, Any] = {}
-    # the robot's maxima first: the sync/de-sync values not given start at them (item 2)
+    # the robot's maxima first: the sync/de-sync values not given start at them
+    # (docs/spec/tracking.md#2.5)
     keys = sorted((f.name for f in dataclasses.fields(TrackerParams)),
                   key=lambda k: not k.startswith("robot_max_"))
     for key in keys:

@@ -1,9 +1,9 @@
 """Opening a real CAN bus like python-can's own tools (``-i/-c/-b``, config file, env vars).
 
-The flags come from ``can.cli.add_bus_arguments`` (python-can >= 4.5); whatever they do not
-give is taken from python-can's configuration (``can.util.load_config``: the file given with
-``--can-config``, else ``~/.canrc``, ``~/.can``, ``/etc/can.conf``, and the environment
-variables CAN_INTERFACE, CAN_CHANNEL, CAN_BITRATE).  Without a bitrate the bus.yml's
+The flags come from ``can.cli.add_bus_arguments`` (python-can >= 4.6, docs/spec/tools.md#4);
+whatever they do not give is taken from python-can's configuration (``can.util.load_config``:
+the file given with ``--can-config``, else ``~/.canrc``, ``~/.can``, ``/etc/can.conf``, and
+the environment variables CAN_INTERFACE, CAN_CHANNEL, CAN_BITRATE).  Without a bitrate the bus.yml's
 ``master.baudrate`` is used.
 """
 

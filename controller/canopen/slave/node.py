@@ -90,6 +90,7 @@ class SimNode:
         network.subscribe(self.node.sdo.rx_cobid, self._on_sdo_request)
         # our NMT replaces canopen's (which would start a periodic heartbeat thread)
         network.unsubscribe(0, self.node.nmt.on_command)
+        # (a private list: canopen is bounded < 2.5 for it, docs/spec/tools.md#3)
         self.node._write_callbacks.remove(self.node.nmt.on_write)
         self.node.add_write_callback(self._on_sdo_write)
         network.subscribe(0x000, self._on_nmt)
