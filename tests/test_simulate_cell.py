@@ -121,3 +121,40 @@ def test_cell_errors_name_file_line_and_key(tmp_path, change, key, match):
     with pytest.raises(ConfigError, match=match) as exc:
         run_scenario(p)
     assert exc.value.key == key and exc.value.file == str(p) and exc.value.line
+
+
+def test_a_frame_whose_source_is_another_robots_tcp_from_a_file():
+    """examples/cell_group_master.yaml: the worker (slave 3) ends on the point of the part
+    the carrier holds - T : TCP_carrier : P, P the offset taken at TRIGGER - and stays on it
+    while the carrier moves on the table."""
+    from controller.conveyor import Location
+
+    r = run_scenario(EXAMPLES / "cell_group_master.yaml")
+    T = r.sample_time_s
+    carrier, worker = r.robots["carrier"], r.robots["worker"]
+    transform = Location.from_axis_angle((-2000.0, 500.0, 0.0), (0, 0, 1), 90.0)
+    P = Location.from_axis_angle((80.0, 0.0, 10.0), (0, 0, 1), 30.0)
+    k_sync = round(worker.records[0].synced_s / T)
+    assert worker.records[0].frame == "on_carrier" and worker.records[0].caught
+    for k in (k_sync + 10, k_sync + 300, len(r.time_s) - 1):
+        tcp = Location(tuple(carrier.setpoint_pos[k]), tuple(carrier.setpoint_ori[k]))
+        want = transform.compound(tcp).compound(P)
+        got = Location(tuple(worker.setpoint_pos[k]), tuple(worker.setpoint_ori[k]))
+        assert got.distance_to(want) < 1e-6 and got.angle_to(want) < 1e-6
+    moved = np.linalg.norm(worker.setpoint_pos[-1] - worker.setpoint_pos[k_sync + 10])
+    assert moved > 50.0
+    assert r.master_values["on_carrier"].shape[1] == 4
+
+
+def test_group_frame_errors(tmp_path):
+    text = (EXAMPLES / "cell_group_master.yaml").read_text()
+    p = tmp_path / "g.yaml"
+    p.write_text(text.replace("robot: carrier\n", "robot: carier\n"))
+    with pytest.raises(ConfigError, match="unknown robot 'carier'") as exc:
+        run_scenario(p)
+    assert exc.value.key == "cell.frames[1].group.robot" and exc.value.line
+    p.write_text(text.replace("- {frame: table, robots: [carrier], trigger_times: [0.0]}",
+                              "- {frame: table, robots: [carrier], trigger_times: [0.0], "
+                              "offset: {position: [0, 0, 0]}}"))
+    with pytest.raises(ConfigError, match="offset.*is for group frames|is for group frames"):
+        run_scenario(p)

@@ -19,6 +19,10 @@ units.  ``*`` = required::
           scales_mm_per_unit: [1, 1]           #   and one scale per DOF (default 1)
           window: {upstream: [0, 0], downstream: [500, 300]}   # NOF > 1: one limit per DOF
           world: {type: scara, dimension: 4}   # optional: the frame's kinematics system
+        - name: on_a                 # or a robot's TCP as the master (frame type 3):
+          group: {robot: r1, transform: {position: [..], axis: [..], angle_deg: ..},
+                  axis: [0, 0, 1]}   #   the robot, its world seen from here, the turn axis
+          window: {upstream: [..4], downstream: [..4]}   # optional (dx, dy, dz, angle)
       robots*:                       # a list: the keys of conveyor.robot, plus
         - name: r1
           kinematics: {type: general, dimension: 6}
@@ -34,6 +38,7 @@ units.  ``*`` = required::
           trigger_times*: [0.1, 0.9]
           types: [1, 2]              # optional: the item type per trigger (default 0)
           radius_offsets_mm: [0, 0]  # optional (rotary frames)
+          offset: {position: [80, 0, 0]}   # group frames: the item relative to the TCP
 
 Each frame gets its own source object of its master (two frames on one belt read the same
 axis: same values, own estimator).  A sensor's TRIGGER latches the master values of its frame
@@ -54,7 +59,7 @@ from typing import Any
 
 import numpy as np
 
-from ..conveyor import (ConveyorCell, EncoderSource, Event, Kinematics, MovingFrame,
+from ..conveyor import (ConveyorCell, EncoderSource, Event, Kinematics, Location, MovingFrame,
                         RobotGroup, SimulatedAxis, TriggerBufferFull, Window)
 from ..conveyor.frame import LINEAR
 from ..conveyor.sources import quantise_counts
@@ -62,7 +67,8 @@ from ..conveyor.telemetry import ItemRecord
 from ..errors import CantrackError, ParameterError
 from ..tracking import Mode, TrackerParams, unwrap_counts
 from .conveyor import (FrameSpec, MasterSpec, PickProgram, ProgramSpec, RobotSpec,
-                       master_fn, read_frame, read_master, read_program, read_robot)
+                       master_fn, read_frame, read_location, read_master, read_program,
+                       read_robot)
 from .reading import MAX_SAMPLES, Node, SampledRun, check_number, tracker_params
 
 __all__ = ["CellScenario", "CellResult", "parse_cell", "run_cell", "write_cell_trace",
@@ -71,17 +77,31 @@ __all__ = ["CellScenario", "CellResult", "parse_cell", "run_cell", "write_cell_t
 
 # -- the scenario ------------------------------------------------------------------------
 @dataclass(frozen=True)
+class GroupSpec:
+    """A group frame's master: robot ``robot``'s TCP through ``transform``, turning about
+    ``axis`` (world)."""
+
+    robot: str
+    transform: Location = Location()
+    axis: tuple[float, float, float] = (0.0, 0.0, 1.0)
+    line: int | None = None
+    path: str = ""
+
+
+@dataclass(frozen=True)
 class CellFrameSpec:
-    spec: FrameSpec                      #: the frame's geometry (first DOF for NOF > 1)
+    spec: FrameSpec | None               #: the geometry (first DOF for NOF > 1; None: group)
     masters: tuple[str, ...]
     directions: tuple[tuple[float, float, float], ...]
     scales: tuple[float, ...]
     window: Window
     world: Kinematics | None = None
+    group: GroupSpec | None = None
+    group_name: str = ""
 
     @property
     def name(self) -> str:
-        return self.spec.name
+        return self.spec.name if self.spec is not None else self.group_name
 
     @property
     def nof(self) -> int:
@@ -115,6 +135,8 @@ class SensorSpec:
     times: tuple[float, ...]
     types: tuple[int, ...]
     dr_mm: tuple[float, ...]
+    #: group frames: the item relative to the master robot's TCP (None: at the TCP)
+    offset: Location | None = None
 
 
 @dataclass(frozen=True)
@@ -158,7 +180,42 @@ def _kinematics(node: Node | None) -> Kinematics | None:
         raise node.error("dimension" if "dimension" in str(exc) else "type", str(exc)) from None
 
 
+def _group_frame(node: Node) -> CellFrameSpec:
+    """A frame whose master is another robot's TCP (type 3)."""
+    node.check_keys(("name", "group", "window", "limits", "world"))
+    name = node.string("name")
+    g = node.section("group", required=True)
+    g.check_keys(("robot", "transform", "axis"))
+    transform = read_location(g, "transform", Location())
+    axis = g.vector("axis", (0.0, 0.0, 1.0))
+    if not any(axis):
+        raise g.error("axis", "must not be the zero vector")
+    window = Window.unlimited(4)
+    if node.has("window"):
+        w = node.section("window")
+        w.check_keys(("upstream", "downstream"))
+        lims = []
+        for key in ("upstream", "downstream"):
+            items = w.items(key)
+            if len(items) != 4:
+                raise w.error(key, "a group frame has 4 DOFs (dx, dy, dz [mm], angle [deg] "
+                                   f"since the trigger): give 4 limits, got {len(items)}")
+            lims.append(tuple(check_number(v, lambda m, line=line, path=path:
+                                           node.ctx.error(m, line, path))
+                              for v, line, path in items))
+        try:
+            window = Window(lims[0], lims[1])
+        except ParameterError as exc:
+            raise w.error("downstream", str(exc)) from None
+    world = _kinematics(node.section("world"))
+    gs = GroupSpec(g.string("robot"), transform, tuple(axis), g.line_of("robot"),
+                   g.key("robot"))
+    return CellFrameSpec(None, (), (), (), window, world, gs, name)
+
+
 def _cell_frame(node: Node, masters: dict[str, MasterSpec]) -> CellFrameSpec:
+    if node.has("group"):
+        return _group_frame(node)
     extra = ("masters", "directions", "scales_mm_per_unit", "world")
     names = _names(node, "masters", masters, "master")
     if not names:
@@ -275,11 +332,17 @@ def _cell_robot(node: Node, frames: dict[str, CellFrameSpec], duration: float
 
 def _sensor(node: Node, frames: dict[str, CellFrameSpec], robots: list[str],
             duration: float) -> SensorSpec:
-    node.check_keys(("frame", "robots", "trigger_times", "types", "radius_offsets_mm"))
+    node.check_keys(("frame", "robots", "trigger_times", "types", "radius_offsets_mm",
+                     "offset"))
     fname = node.string("frame")
     if fname not in frames:
         raise node.error("frame", f"unknown frame {fname!r} (known: "
                                   f"{', '.join(map(repr, frames))})")
+    offset = None
+    if node.has("offset"):
+        if frames[fname].group is None:
+            raise node.error("offset", "is for group frames (a robot's TCP as the master)")
+        offset = read_location(node, "offset", Location())
     names = _names(node, "robots", robots, "robot") if node.has("robots") else tuple(robots)
     times = tuple(check_number(v, lambda m, line=line, path=path: node.ctx.error(m, line, path),
                                lo=0.0, hi=duration, hi_open=True,
@@ -300,7 +363,7 @@ def _sensor(node: Node, frames: dict[str, CellFrameSpec], robots: list[str],
                      for v, line, path in items)
     types = per_time("types", 0, lo=0, hi=255, integer=True)
     drs = per_time("radius_offsets_mm", 0.0, unit="mm")
-    return SensorSpec(fname, names, times, types, drs)
+    return SensorSpec(fname, names, times, types, drs, offset)
 
 
 def parse_cell(root: Node, ctx, source: Path | None) -> CellScenario:
@@ -338,6 +401,11 @@ def parse_cell(root: Node, ctx, source: Path | None) -> CellScenario:
         robots.append(rs)
     if not frames or not robots:
         raise cn.error("frames" if not frames else "robots", "must list at least one")
+    for fs in frames.values():
+        if fs.group is not None and fs.group.robot not in [r.name for r in robots]:
+            raise ctx.error(f"unknown robot {fs.group.robot!r} (known: "
+                            f"{', '.join(repr(r.name) for r in robots)})", fs.group.line,
+                            fs.group.path)
     sensors = tuple(_sensor(Node(ctx, v, path, line), frames, [r.name for r in robots],
                             duration) for v, line, path in cn.items("sensors"))
     return CellScenario(params, float(duration), masters, tuple(frames.values()),
@@ -400,6 +468,8 @@ def run_cell(sc: CellScenario) -> CellResult:
     frames: dict[str, MovingFrame] = {}
     latch: dict[str, list] = {}
     for fs in sc.frames:
+        if fs.group is not None:
+            continue   # made once its master robot exists
         srcs, fns = [], []
         per = []
         for mname in fs.masters:
@@ -431,6 +501,15 @@ def run_cell(sc: CellScenario) -> CellResult:
         for fname, types in rs.track_types:
             robot.track_types(fname, types)
         robots[r.name] = robot
+    for fs in sc.frames:
+        if fs.group is not None:
+            frames[fs.name] = MovingFrame.group(
+                fs.name, robots[fs.group.robot], transform=fs.group.transform,
+                axis=fs.group.axis, window=fs.window, world=fs.world)
+    frames = {fs.name: frames[fs.name] for fs in sc.frames}   # the file's order
+    for rs in sc.robots:
+        r = rs.robot
+        robot = robots[r.name]
         if rs.program is not None:
             programs[r.name] = PickProgram(robot, frames[rs.program_frame], rs.program, r.slave)
     cell = ConveyorCell(list(frames.values()), list(robots.values()))
@@ -464,11 +543,13 @@ def run_cell(sc: CellScenario) -> CellResult:
     last: dict[str, tuple[Event, ...]] = {name: () for name in robots}
     for k in range(n):
         for s, i in by_k.get(k, ()):
-            vals = values_at(s.frame, s.times[i])
+            group = frames[s.frame].group_source is not None
+            vals = None if group else values_at(s.frame, s.times[i])
             for rname in s.robots:
                 try:
                     e = robots[rname].trigger(frames[s.frame], values=vals, dr_mm=s.dr_mm[i],
-                                              item_type=s.types[i])
+                                              item_type=s.types[i],
+                                              offset=s.offset if group else None)
                 except TriggerBufferFull as exc:
                     extra[rname].append(Event(k, "trigger_rejected", s.frame, message=str(exc)))
                     continue
@@ -559,6 +640,10 @@ def format_cell_summary(result: CellResult) -> str:
              f"{sc.params.planner}, T = {T * 1000:g} ms, {sc.n_samples} samples = "
              f"{sc.n_samples * T:.3f} s"]
     for fs in sc.frames:
+        if fs.group is not None:
+            lines.append(f"Frame      '{fs.name}' group: the TCP of robot '{fs.group.robot}' "
+                         f"(4 DOFs: dx, dy, dz, angle about {fs.group.axis})")
+            continue
         unit = "mm" if fs.spec.type == LINEAR else "deg"
         w = fs.window
         win = ", ".join(f"{u:g}...{d:g}" for u, d in zip(w.upstream, w.downstream))
@@ -611,6 +696,8 @@ def plot_cell_result(result: CellResult, path: str | Path, *, dpi: int = 110) ->
     ax = fig.add_subplot(gs[:, 0])
     colours = ["tab:orange", "tab:purple", "tab:brown", "tab:olive", "tab:cyan"]
     for i, (name, f) in enumerate(r.frames.items()):
+        if f.group_source is not None:
+            continue   # a robot's TCP: drawn as that robot's path
         g = f.geometry()
         c = colours[i % len(colours)]
         w = f.window
