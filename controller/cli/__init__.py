@@ -31,7 +31,7 @@ from ..errors import CantrackError
 COMMANDS: dict[str, tuple[str, str]] = {
     "simulate": ("controller.simulate.command:main",
                  "run a tracking scenario offline (CSV trace, summary, PNG plot)"),
-    "capacity": ("controller.simulate.capacity_command:main",
+    "capacity": ("controller.cli.capacity:main",
                  "up to which belt speed and item rate a conveyor cell picks every item"),
     "demo": ("controller.cli.demo:main", "tracking demo on a simulated CANopen bus"),
     "run": ("controller.cli.run:main", "the CANopen tracking controller on a CAN bus"),

@@ -3,7 +3,7 @@
 
 Sweeps belt speed x item spacing (x window placement) for a conveyor scenario and prints the
 fastest belt speed at which every item is picked, per spacing, with the limiting reason
-above it, and the map (:mod:`controller.simulate.capacity`).  ``--plot`` writes the map as a
+above it, and the map (:mod:`controller.simulate.capacity`, docs/spec/capacity.md).  ``--plot`` writes the map as a
 PNG, ``--json`` the numbers.  Units: the frame's (mm, mm/s on a belt; deg, deg/s on a table).
 """
 
@@ -65,9 +65,9 @@ def build_parser(prog: str = "cantrack capacity") -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None, prog: str = "cantrack capacity") -> int:
     args = build_parser(prog).parse_args(argv)
-    from .capacity import capacity, format_capacity, plot_capacity
-    from .conveyor import ConveyorScenario
-    from .scenario import load_scenario
+    from ..simulate.capacity import capacity, format_capacity, plot_capacity
+    from ..simulate.conveyor import ConveyorScenario
+    from ..simulate.scenario import load_scenario
 
     sc = load_scenario(args.scenario)
     if not isinstance(sc, ConveyorScenario):
