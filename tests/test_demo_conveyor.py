@@ -116,3 +116,54 @@ def test_demo_telemetry_has_the_model_item_records(tmp_path, capsys):
                for d in items)
     imfs = {d["imfs"] for d in lines if d["type"] == "cycle" and d["phase"] == "running"}
     assert imfs == {0, 1, -1}
+
+
+def test_item_types_from_bus_yml_the_robot_picks_only_its_types(tmp_path):
+    """.demo.item_types gives the photo-eye's items types in turn, .tracking.items.track_types
+    the types the robot tracks: it places the type-2 items only; the type-1 items are ignored
+    (never engaged, never missed, 30238)."""
+    src = cmd_demo.DEFAULT_CONFIG.read_text(encoding="utf-8")
+    assert "\n.demo:\n" in src and "  window:" in src
+    assert "\n  items: 5\n" in src
+    text = src.replace("\n  items: 5\n", "\n  items: 6\n  item_types: [1, 2]\n", 1)
+    text = text.replace("  window:", "  items: {track_types: [2]}\n  window:", 1)
+    from controller.canopen.config import parse_bus_config
+
+    cfg = parse_bus_config(text, str(tmp_path / "bus.yml"),
+                           base_dir=cmd_demo.DEFAULT_CONFIG.parent)
+    assert cfg.tracking.track_types == frozenset({2}) and cfg.demo.item_types == (1, 2)
+    app = PickPlace(cfg.demo)
+    with SimWorld(cfg) as world:
+        ctl = Controller(cfg, world.transport, app)
+        ctl.boot()
+        ctl.start()
+        app.eye = PhotoEye(world.device(cfg.tracking.conveyor.node).profile, cfg.demo,
+                           world.clock.now_ns() * 1e-9)
+        while ctl.k < 20000 and not app.done(ctl, ctl.k - 1):
+            ctl.step()
+    items = app.items()
+    assert [i.item_type for i in items] == [1, 2, 1, 2, 1, 2]
+    assert {i.outcome for i in items if i.item_type == 2} == {"placed"}
+    assert {i.outcome for i in items if i.item_type == 1} == {"ignored"}
+    assert all(i.engage_cycle is None for i in items if i.item_type == 1)
+    assert not any(i.outcome == "missed" for i in items)
+    recs = {rec.item_id: rec for rec in app.robot.records.values()}
+    assert all(recs[i.entry_id].status != ItemStatus.MISSED for i in items)
+
+
+def test_item_type_errors_in_bus_yml_name_the_key():
+    import pytest
+
+    from controller.canopen.config import parse_bus_config
+    from controller.errors import ConfigError
+
+    src = cmd_demo.DEFAULT_CONFIG.read_text(encoding="utf-8")
+    for old, new, key in (
+            ("  window:", "  items: {track_types: [2, 300]}\n  window:", "track_types[1]"),
+            ("  window:", "  items: {track_types: []}\n  window:", "track_types"),
+            ("  window:", "  items: {track_type: [1]}\n  window:", "track_type"),
+            ("\n  items: 5\n", "\n  items: 5\n  item_types: [1, -1]\n", "item_types[1]")):
+        with pytest.raises(ConfigError) as exc:
+            parse_bus_config(src.replace(old, new, 1), "bus.yml",
+                             base_dir=cmd_demo.DEFAULT_CONFIG.parent)
+        assert exc.value.key.endswith(key) and exc.value.line, (new, exc.value)

@@ -84,11 +84,12 @@ class Item:
     synced_cycle: int | None = None
     picked_cycle: int | None = None
     placed_cycle: int | None = None
-    outcome: str = "pending"  # pending, placed, missed
+    outcome: str = "pending"  # pending, placed, missed, ignored
     reason: str = ""
     max_error_mm: float = 0.0
     u_pick: float | None = None
     entry_id: int | None = None  # its TRIGGER entry in the robot's buffer
+    item_type: int = 0  # its class (.demo.item_types; .tracking.items.track_types)
     model: dict = field(default_factory=dict)  # the conveyor model's ItemRecord.as_dict()
 
 
@@ -102,7 +103,9 @@ class PhotoEye:
         for i in range(demo.items):
             t = self._time_at(profile, b, start_s)
             self.items.append(Item(i, round(t * 1e9), rng.uniform(*demo.lateral),
-                                   rng.uniform(*demo.angle)))
+                                   rng.uniform(*demo.angle),
+                                   item_type=demo.item_types[i % len(demo.item_types)]
+                                   if demo.item_types else 0))
             b += rng.uniform(*demo.pitch_mm)
         self._next = 0
 
@@ -196,6 +199,8 @@ class PickPlace:
                                 motion_limits=MotionLimits(
                                     tp.sync_trans.vel, tp.sync_trans.acc, tp.sync_trans.jerk,
                                     tp.sync_rot.vel, tp.sync_rot.acc, tp.sync_rot.jerk))
+        if ctl.cfg.tracking.track_types is not None:
+            self.robot.track_types(self.frame, ctl.cfg.tracking.track_types)
         self._prev = sp
         # the controller's tracker passes the robot's setpoint through (SYNCED, absolute);
         # the robot group limits its own motions, so the master limits are the robot's
@@ -226,15 +231,18 @@ class PickPlace:
             s_meas = ctl.master.belt_mm if ctl.master.belt_mm is not None else belt.pos
             item.s_item = s_meas - belt.vel * (t_now - item.t_edge_ns) * 1e-9
             item.trigger_cycle = cycle
-            e = r.trigger(f, values=[item.s_item])
+            e = r.trigger(f, values=[item.s_item], item_type=item.item_type)
             item.entry_id = e.id
             self._by_entry[e.id] = item
+            types = r.tracked_types(f)
+            if types is not None and item.item_type not in types:
+                self._finish_item(item, "ignored", f"type {item.item_type} not tracked")
         step = self.step
         if step == Step.WAIT:
-            entry = r.buffer.current(f.name)
+            entry = r.buffer.current(f.name, r.tracked_types(f))
             while entry is not None and self._by_entry[entry.id].outcome != "pending":
                 r.nextitem(f)  # (an item de-synced by STOP stays in the buffer: drop it)
-                entry = r.buffer.current(f.name)
+                entry = r.buffer.current(f.name, r.tracked_types(f))
             if entry is not None and not r.links and ctl.master.ready:
                 item = self._by_entry[entry.id]
                 self.current = item

@@ -77,9 +77,12 @@ def summary_table(ctl: Controller, items: Sequence[Item], wall_s: float) -> str:
                      f"{it.reason}")
     placed = sum(1 for i in items if i.outcome == "placed")
     missed = sum(1 for i in items if i.outcome == "missed")
+    ignored = sum(1 for i in items if i.outcome == "ignored")
     sim_s = ctl.k * T
     lines.append("")
-    lines.append(f"items placed {placed}, missed {missed}, of {len(items)}; "
+    lines.append(f"items placed {placed}, missed {missed}, "
+                 + (f"ignored {ignored} (type not tracked), " if ignored else "")
+                 + f"of {len(items)}; "
                  f"{ctl.k} cycles = {sim_s:.2f} s simulated in {wall_s:.2f} s wall "
                  f"({sim_s / wall_s if wall_s else math.inf:.1f}x real time)")
     lines.append(f"bus load {100 * ctl.bus_load.load:.1f} % "

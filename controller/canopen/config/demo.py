@@ -11,6 +11,7 @@ measured from ``.tracking.conveyor.origin`` (the window uses the same u).  Keys:
       photo_eye: 0.0               # u of the photo-eye [mm]
       lateral: [-40, 40]           # item offset across the belt [mm] (seeded uniform)
       angle: [-30, 30]             # item angle about z [deg] (seeded uniform)
+      item_types: [1, 2]           # the items' types in turn (0...255; default: all 0)
       pick: {height: 20, dwell_s: 0.15}      # z of the pick [mm]; follow time once SYNCED
       place: {position: [600, 300, 80], angle: 0, dwell_s: 0.05}
       duration_s: 30               # the demo stops at the latest after this [s]
@@ -21,6 +22,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
+from ...errors import ConfigError
 from ...yamlmarks import Section
 
 if TYPE_CHECKING:
@@ -42,6 +44,8 @@ class DemoConfig:
     place_angle: float = 0.0
     place_dwell_s: float = 0.05
     duration_s: float = 30.0
+    #: the photo-eye's items get these types in turn (empty: all type 0)
+    item_types: tuple[int, ...] = ()
 
 
 def _pair(s: Section, key: str, default: tuple[float, float]) -> tuple[float, float]:
@@ -49,6 +53,16 @@ def _pair(s: Section, key: str, default: tuple[float, float]) -> tuple[float, fl
     if lo > hi:
         raise s.error(key, f"must be [lo, hi] with lo <= hi, not [{lo}, {hi}]")
     return lo, hi
+
+
+def _types(s: Section) -> tuple[int, ...]:
+    out = []
+    for v, line, path in s.list("item_types", None):
+        if isinstance(v, bool) or not isinstance(v, int) or not 0 <= v <= 255:
+            raise ConfigError(f"(={v!r}) must be an item type, an integer in [0...255]",
+                              file=s.file, line=line, key=path)
+        out.append(v)
+    return tuple(out)
 
 
 def parse_demo(s: Section, cfg: BusConfig, tracking: Any) -> DemoConfig:
@@ -68,7 +82,8 @@ def parse_demo(s: Section, cfg: BusConfig, tracking: Any) -> DemoConfig:
         place_position=place.vector("position", 3, d.place_position),
         place_angle=place.float("angle", d.place_angle),
         place_dwell_s=place.float("dwell_s", d.place_dwell_s, min=0.0),
-        duration_s=s.float("duration_s", d.duration_s, above=0.0))
+        duration_s=s.float("duration_s", d.duration_s, above=0.0),
+        item_types=_types(s))
     pick.finish()
     place.finish()
     if out.pitch_mm[0] <= 0:

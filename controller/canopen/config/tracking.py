@@ -55,6 +55,9 @@ scales).  Keys (``*`` = required)::
         sync_trans: {vel: 2000, acc: 20000, jerk: 400000}   # and every other field; sync/
                                      #   desync not given: robot_max_* (docs/spec/tracking.md#2.5)
       window: {start: 200, end: 900} # pick window along the conveyor direction [mm]
+      items:                         # item classification (docs/spec/conveyor-extensions.md#3)
+        track_types: [1, 2]          # the item types the robot tracks (0...255; default:
+                                     #   every type); the others are never engaged or missed
       cycle:
         compute_at: 0.5              # the cycle computes at the latest this fraction of the
                                      #   period after its SYNC (inputs late -> stale)
@@ -167,6 +170,8 @@ class TrackingConfig:
     compute_at: float
     timeouts: Timeouts
     drive_delay_cycles: int = 1
+    #: the item types the robot tracks (None: every type)
+    track_types: frozenset[int] | None = None
 
     @property
     def drive_nodes(self) -> tuple[str, ...]:
@@ -191,6 +196,20 @@ def parse_tracking(s: Section, cfg: BusConfig) -> TrackingConfig:
     if not start < end:
         raise w.error("end", f"(={end}) must be > start (={start})")
     w.finish()
+    track_types = None
+    it = s.section("items", {})
+    if it.has("track_types"):
+        types = []
+        for v, line, path in it.list("track_types"):
+            if isinstance(v, bool) or not isinstance(v, int) or not 0 <= v <= 255:
+                raise ConfigError(f"(={v!r}) must be an item type, an integer in [0...255]",
+                                  file=it.file, line=line, key=path)
+            types.append(v)
+        if not types:
+            raise it.error("track_types", "must list at least one item type (leave the key "
+                                          "out to track every type)")
+        track_types = frozenset(types)
+    it.finish()
     c = s.section("cycle", {})
     compute_at = c.float("compute_at", 0.5, min=0.05, max=0.95)
     delay = c.int("drive_delay_cycles", 1, min=0, max=10)
@@ -203,7 +222,7 @@ def parse_tracking(s: Section, cfg: BusConfig) -> TrackingConfig:
     t.finish()
     s.finish()
     return TrackingConfig(conveyor, kind, axes, tracker, (start, end), compute_at, timeouts,
-                          delay)
+                          delay, track_types)
 
 
 def _slave_ref(s: Section, key: str, cfg: BusConfig, profile: int, what: str) -> str:
