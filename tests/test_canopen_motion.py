@@ -357,7 +357,7 @@ def test_move_to_home_after_gotoy_same_session(tmp_path, offset):
     # the simulated devices live as long as the session: home, then move in the same one
     from controller.canopen.slave.world import SimWorld
     cfg = cfg_of(tmp_path, homing=GOTOY.replace("}", f", home_offset: {offset}}}"))
-    ax = am._axis(cfg, "y")
+    ax = am.axis_config(cfg, "y")
     with SimWorld(cfg) as world:
         dev = world.device("y")
         jobs = [am.GotoYJob(ax, cfg.period_s), am.MoveJob(ax, cfg.period_s, offset)]
@@ -413,7 +413,7 @@ def _at_rest_on_last_setpoint(r: am.MotionReport) -> None:
 
 def test_move_max_time_stops_jerk_limited(tmp_path):
     cfg = cfg_of(tmp_path)
-    ax = am._axis(cfg, "y")
+    ax = am.axis_config(cfg, "y")
     # 30 -> 1000 mm takes > 5 s at 200 mm/s: cut off at 1 s (at full speed)
     (r,), ctl = _session(cfg, [am.MoveJob(ax, cfg.period_s, 1000.0)], 1.0)
     assert not r.ok and r.result == "ERROR_TIMEOUT"
@@ -440,7 +440,7 @@ def test_move_max_time_cli(tmp_path, capsys):
 
 def test_jog_max_time_stops_jerk_limited(tmp_path):
     cfg = cfg_of(tmp_path)
-    ax = am._axis(cfg, "y")
+    ax = am.axis_config(cfg, "y")
     (r,), ctl = _session(cfg, [am.JogJob(ax, cfg.period_s, 100.0, 3.0)], 1.0)
     assert not r.ok and r.result == "ERROR_TIMEOUT" and "stopped" in r.message
     assert _reactions(ctl) == []
@@ -452,7 +452,7 @@ def test_max_time_during_brake_release(tmp_path):
     # time is up while the brake opens: no motion at all, the brake engages again
     cfg = cfg_of(tmp_path, motion=f"{{vel: {V}, acc: {A}, jerk: 50000, brake_release_s: 0.5, "
                                   "brake_engage_s: 0.03}")
-    ax = am._axis(cfg, "y")
+    ax = am.axis_config(cfg, "y")
     (r,), ctl = _session(cfg, [am.MoveJob(ax, cfg.period_s, 100.0)], 0.4)
     assert r.result == "ERROR_TIMEOUT" and _reactions(ctl) == []
     assert set(r.targets) == {300000} and r.end_counts == 300000
@@ -469,7 +469,7 @@ def test_max_time_gotoy_and_drive_homing_of_several_axes(tmp_path):
     # x: the drive's "current position" homing (at once); y: GotoY, cut off while searching
     cfg = cfg_of(tmp_path, sim="", x_homing="{method: drive, drive_method: 35, timeout_s: 1}")
     reports, ctl = _session(
-        cfg, [am.make_home_job(am._axis(cfg, n), cfg.period_s) for n in ("x", "y")], 1.0)
+        cfg, [am.make_home_job(am.axis_config(cfg, n), cfg.period_s) for n in ("x", "y")], 1.0)
     x, y = reports
     assert x.ok and not y.ok and y.result == "ERROR_TIMEOUT" and "stopped" in y.message
     assert "ABORT" in y.states and y.states[-1] == "STOP"
@@ -480,7 +480,7 @@ def test_max_time_gotoy_and_drive_homing_of_several_axes(tmp_path):
     cfg = cfg_of(tmp_path, x_homing="{method: drive, drive_method: 21, switch_vel: 20, "
                                     "timeout_s: 5}")
     reports, ctl = _session(
-        cfg, [am.make_home_job(am._axis(cfg, n), cfg.period_s) for n in ("x", "y")], 0.5)
+        cfg, [am.make_home_job(am.axis_config(cfg, n), cfg.period_s) for n in ("x", "y")], 0.5)
     assert [(r.axis, r.result) for r in reports] == [("x", "ERROR_TIMEOUT")]
     assert _reactions(ctl) == []
     assert reports[0].states[-1] == "CSP"  # the drive's homing interrupted, back in CSP
@@ -507,7 +507,7 @@ def test_stop_between_jobs_next_not_started(tmp_path):
             ctl.request_stop("ERROR_TIMEOUT", "time is up")
 
     with SimWorld(cfg) as world:
-        jobs = [am.make_home_job(am._axis(cfg, n), cfg.period_s) for n in ("x", "y")]
+        jobs = [am.make_home_job(am.axis_config(cfg, n), cfg.period_s) for n in ("x", "y")]
         ctl = am.MotionController(cfg, world.transport, jobs, on_cycle=on_cycle)
         x, y = am.run_jobs(ctl)
     assert x.ok
@@ -542,7 +542,7 @@ def test_home_axis_without_homing_section(tmp_path, capsys):
     with pytest.raises(am.MotionError, match="has no homing: section"):
         am.home(cfg, ["y", "x"])  # before anything moves: y is not homed either
     with pytest.raises(am.MotionError, match="has no homing: section"):
-        am.make_home_job(am._axis(cfg, "x"), cfg.period_s)
+        am.make_home_job(am.axis_config(cfg, "x"), cfg.period_s)
     assert cli.main(["home", str(p), "--axis", "x", "-q"]) == 2
     assert capsys.readouterr().err.strip() == f"cantrack: error: {msg}"
 
@@ -630,7 +630,7 @@ def _home_y(tmp_path, *, touch_probe: bool, initial: int = 300000, offset: float
     p.write_text(text)
     cfg = load_bus_config(p)
     with SimWorld(cfg, record=record) as world:
-        ctl = am.MotionController(cfg, world.transport, [am.GotoYJob(am._axis(cfg, "y"),
+        ctl = am.MotionController(cfg, world.transport, [am.GotoYJob(am.axis_config(cfg, "y"),
                                                                      cfg.period_s)])
         (r,) = am.run_jobs(ctl)
         frames = world.recorder.frames if record else []
@@ -758,7 +758,7 @@ def test_touch_probe_config_errors(tmp_path, monkeypatch):
     with pytest.raises(ConfigError, match=r"touch_probe.*missing 60BBh"):
         load_bus_config(p)
     p.write_text(yml_text(homing="{method: gotoy}"))
-    assert am._axis(load_bus_config(p), "y").homing.touch_probe is False
+    assert am.axis_config(load_bus_config(p), "y").homing.touch_probe is False
 
 
 def test_max_time_while_arming_the_touch_probe(tmp_path):
@@ -766,7 +766,7 @@ def test_max_time_while_arming_the_touch_probe(tmp_path):
     from controller.canopen.slave.world import SimWorld
     cfg = cfg_of(tmp_path, homing=GOTOY.replace("}", ", touch_probe: true}"), sim=PROBE_SIM)
     with SimWorld(cfg) as world:
-        ctl = am.MotionController(cfg, world.transport, [am.GotoYJob(am._axis(cfg, "y"),
+        ctl = am.MotionController(cfg, world.transport, [am.GotoYJob(am.axis_config(cfg, "y"),
                                                                      cfg.period_s)])
         (r,) = am.run_jobs(ctl, 0.032)
         assert int(world.device("y").load(0x60B8, 0)) == 0  # never armed

@@ -18,12 +18,13 @@ from ..canopen.io import canbus
 from ..canopen.io.transport import RealtimeTransport
 from ..canopen.master.checkbus import check_bus, parse_scan
 from ..errors import ConfigError
+from .common import add_bus_arguments
 
 
 def build_parser(prog: str) -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog=prog, description=__doc__.split("\n\n")[0])
     p.add_argument("config", help="bus.yml (slaves, EDS files, PDOs)")
-    canbus.add_arguments(p)
+    add_bus_arguments(p)
     p.add_argument("--scan", metavar="A-B", help="also look for nodes in this node-ID range "
                    "(e.g. 1-127): an answering node that is not configured is reported")
     p.add_argument("--listen", type=float, metavar="S",

@@ -12,7 +12,6 @@ seconds), ``--realtime`` for wall-clock time.  Writes to ``-o DIR`` (default
 from __future__ import annotations
 
 import argparse
-import sys
 import time
 from dataclasses import replace
 from pathlib import Path
@@ -25,6 +24,7 @@ from ..canopen.master.plc_node import PlcNode
 from ..canopen.slave.world import SimWorld
 from ..errors import ConfigError
 from ..resources import data_path
+from .common import StatusLine
 
 DEFAULT_CONFIG = data_path("examples", "bus", "demo.yml")
 
@@ -65,19 +65,12 @@ def main(argv: list[str] | None = None, prog: str = "cantrack demo") -> int:
     out.mkdir(parents=True, exist_ok=True)
     enc_name = cfg.tracking.conveyor.node
     app = PickPlace(demo)
-    tty = sys.stderr.isatty()
-    last_print = [-1.0]
+    status = StatusLine(args.quiet)
 
     def on_cycle(ctl: Controller, rec) -> None:
-        if args.quiet:
-            return
-        every = 0.1 if tty else 1.0
-        if rec.t_s - last_print[0] >= every:
-            last_print[0] = rec.t_s
-            n_done = len(app.done_items)
-            line = status_line(ctl, rec, f"items {n_done}/{demo.items}  ")
-            print("\r" + line if tty else line, end="" if tty else "\n", file=sys.stderr,
-                  flush=True)
+        if status.due(rec.t_s):
+            status.show(rec.t_s, status_line(ctl, rec, f"items {len(app.done_items)}/"
+                                                       f"{demo.items}  "))
 
     wall0 = time.perf_counter()
     with SimWorld(cfg, realtime=args.realtime, bus_log=out / "bus.log") as world:
@@ -89,8 +82,7 @@ def main(argv: list[str] | None = None, prog: str = "cantrack demo") -> int:
         app.eye = PhotoEye(encoder.profile, demo, world.clock.now_ns() * 1e-9)
         ctl.run()
     wall = time.perf_counter() - wall0
-    if not args.quiet and tty:
-        print(file=sys.stderr)
+    status.close()
     items = app.items()
     write_telemetry(out / "telemetry.jsonl", ctl, items)
     if not args.no_plot:

@@ -16,13 +16,14 @@ from __future__ import annotations
 import argparse
 
 from ..canopen.apps import axis_motion as am
+from .axis import add_axis_arguments, run_axis_command
 
 
 def main(argv: list[str] | None = None, prog: str = "cantrack home") -> int:
     p = argparse.ArgumentParser(prog=prog, description=__doc__.split("\n\n")[0])
-    am.add_common_arguments(p)
+    add_axis_arguments(p)
     p.add_argument("--axis", action="append",
                    help="axis to home (repeatable; it must have a homing: section).  Default: "
                         "every axis with a homing: section; the others are listed as SKIPPED")
     args = p.parse_args(argv)
-    return am.cli_run(args, lambda cfg, **kw: am.home(cfg, args.axis, **kw))
+    return run_axis_command(args, lambda cfg, **kw: am.home(cfg, args.axis, **kw))

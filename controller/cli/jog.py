@@ -11,14 +11,15 @@ from __future__ import annotations
 import argparse
 
 from ..canopen.apps import axis_motion as am
+from .axis import add_axis_arguments, run_axis_command
 
 
 def main(argv: list[str] | None = None, prog: str = "cantrack jog") -> int:
     p = argparse.ArgumentParser(prog=prog, description=__doc__.split("\n\n")[0])
-    am.add_common_arguments(p)
+    add_axis_arguments(p)
     p.add_argument("--axis", required=True, help="the axis to jog")
     p.add_argument("--speed", type=float, required=True, help="speed [mm/s|deg/s], signed")
     p.add_argument("--time", type=float, required=True, help="jog time [s] before the stop")
     args = p.parse_args(argv)
-    return am.cli_run(args, lambda cfg, **kw: am.jog(cfg, args.axis, args.speed, args.time,
+    return run_axis_command(args, lambda cfg, **kw: am.jog(cfg, args.axis, args.speed, args.time,
                                                        **kw))

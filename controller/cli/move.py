@@ -11,12 +11,13 @@ from __future__ import annotations
 import argparse
 
 from ..canopen.apps import axis_motion as am
+from .axis import add_axis_arguments, run_axis_command
 
 
 def main(argv: list[str] | None = None, prog: str = "cantrack move") -> int:
     p = argparse.ArgumentParser(prog=prog, description=__doc__.split("\n\n")[0])
-    am.add_common_arguments(p)
+    add_axis_arguments(p)
     p.add_argument("--axis", required=True, help="the axis to move")
     p.add_argument("--to", type=float, required=True, help="target [mm|deg]")
     args = p.parse_args(argv)
-    return am.cli_run(args, lambda cfg, **kw: am.move(cfg, args.axis, args.to, **kw))
+    return run_axis_command(args, lambda cfg, **kw: am.move(cfg, args.axis, args.to, **kw))

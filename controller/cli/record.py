@@ -19,12 +19,13 @@ from ..canopen.apps.record import LOG_FORMATS
 from ..canopen.config import load_bus_config
 from ..canopen.io import canbus
 from ..errors import CanError
+from .common import add_bus_arguments
 
 
 def build_parser(prog: str) -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog=prog, description=__doc__.split("\n\n")[0])
     p.add_argument("config", nargs="?", help="bus.yml (only for its bitrate)")
-    canbus.add_arguments(p)
+    add_bus_arguments(p)
     p.add_argument("-o", "--output", required=True,
                    help="log file: .log (candump), .asc, .blf, .csv, .trc, ...")
     p.add_argument("--duration", type=float, help="stop after this many seconds")

@@ -26,7 +26,6 @@ controller sent after each SYNC, timing and the exit code.
 from __future__ import annotations
 
 import argparse
-import sys
 import time
 from collections.abc import Callable
 
@@ -40,12 +39,13 @@ from ..canopen.master.app import ConveyorFollow
 from ..canopen.master.cycle import Controller, Phase
 from ..errors import CanError
 from ..tracking import Mode
+from .common import StatusLine, add_bus_arguments
 
 
 def build_parser(prog: str) -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog=prog, description=__doc__.split("\n\n")[0])
     p.add_argument("config", help="bus.yml with a .tracking section")
-    canbus.add_arguments(p)
+    add_bus_arguments(p)
     p.add_argument("--duration", type=float, help="stop after this many seconds")
     p.add_argument("--engage-at", type=float, help="engage this many s after tracking starts")
     p.add_argument("--disengage-at", type=float, help="disengage this many s after the start")
@@ -188,7 +188,7 @@ def main(argv: list[str] | None = None, prog: str = "cantrack run") -> int:
     settings, cfg = canbus.bus_config_for(args, cfg)
     check_bus_load(cfg)  # before the bus is opened: a refusal leaves nothing to clean up
     bus = canbus.open_configured(settings)
-    last = [-1.0]
+    status = StatusLine(args.quiet, every_s=1.0, every_tty_s=0.2)
     changes: list[dict] = []
     prev: list = [None]
     terminated = [False]
@@ -209,9 +209,8 @@ def main(argv: list[str] | None = None, prog: str = "cantrack run") -> int:
             prev[0] = key
             changes.append({"cycle": rec.cycle, "t_s": rec.t_s, "phase": rec.phase,
                             "state": _STATE_NAMES.get(rec.state, str(rec.state))})
-        if not args.quiet and rec.t_s - last[0] >= 0.2:
-            last[0] = rec.t_s
-            print("\r" + status_line(ctl, rec), end="", file=sys.stderr, flush=True)
+        if status.due(rec.t_s):
+            status.show(rec.t_s, status_line(ctl, rec))
 
     def stop() -> bool:
         # SIGTERM; or, during a quick stop, --duration over (counted from the cycle start):
@@ -253,8 +252,7 @@ def main(argv: list[str] | None = None, prog: str = "cantrack run") -> int:
     finally:
         canbus.set_sigterm(old_term)
         transport.close()
-        if not args.quiet:
-            print(file=sys.stderr)
+        status.close()
     reacted = any("quick stop" in e.reaction for e in ctl.events)
     code = EXIT_REACTION if reacted else 0
     if args.telemetry:

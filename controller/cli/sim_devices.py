@@ -27,6 +27,7 @@ from ..canopen.slave.encoder import SimEncoder
 from ..canopen.slave.node import NMT_INITIALISING
 from ..canopen.slave.rack import DeviceRack
 from ..errors import ConfigError
+from .common import StatusLine, add_bus_arguments
 
 ACTIONS = ("fault", "emcy", "heartbeat-stop", "silence", "mute-pdos", "noise", "disturb",
            "power-off")
@@ -77,7 +78,7 @@ def apply_injection(rack: DeviceRack, node: str, action: str, arg: str | None) -
 def build_parser(prog: str) -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog=prog, description=__doc__.split("\n\n")[0])
     p.add_argument("config", help="bus.yml (slaves and the .simulation section)")
-    canbus.add_arguments(p)
+    add_bus_arguments(p)
     p.add_argument("--only", nargs="+", metavar="NAME", help="simulate only these slaves")
     p.add_argument("--duration", type=float, help="stop after this many seconds")
     p.add_argument("--inject", action="append", default=[], metavar="T:NODE:ACTION[:ARG]",
@@ -129,6 +130,7 @@ def main(argv: list[str] | None = None, prog: str = "cantrack sim-devices") -> i
 
     old_term = canbus.set_sigterm(on_term)
     ready = args.ready_file is None
+    status = StatusLine(args.quiet, every_s=1.0, every_tty_s=0.0)
     try:
         while not stopping[0] and (t_end is None or clock.now_ns() * 1e-9 < t_end):
             if not ready and all(d.nmt_state != NMT_INITIALISING
@@ -140,8 +142,7 @@ def main(argv: list[str] | None = None, prog: str = "cantrack sim-devices") -> i
                 _, node, action, arg = injections.pop(0)
                 apply_injection(rack, node, action, arg)
                 print(f"[{now:.3f} s] injected {action} on {node}", file=sys.stderr)
-            if not args.quiet:
-                print("\r" + describe(rack), end="", file=sys.stderr, flush=True)
+            status.show(now, describe(rack))
             time.sleep(0.05)
     except KeyboardInterrupt:
         pass
@@ -149,6 +150,5 @@ def main(argv: list[str] | None = None, prog: str = "cantrack sim-devices") -> i
         canbus.set_sigterm(old_term)
         thread.stop()
         bus.shutdown()
-        if not args.quiet:
-            print(file=sys.stderr)
+        status.close()
     return 0

@@ -1,7 +1,9 @@
 """Applications of the controller: what is tracked or moved, and the reports of a run.
 
 - :mod:`.demo` — the pick-and-place sequence (conveyor cell with items);
-- :mod:`.axis_motion` — axis jobs (GotoY and drive homing, point-to-point, jog) and their API;
+- :mod:`.axis_jobs` — axis jobs (GotoY and drive homing, point-to-point, jog);
+- :mod:`.axis_controller` — the cycle running them (:class:`~.axis_controller.MotionController`);
+- :mod:`.axis_motion` — the Python API: ``home``, ``move``, ``jog``;
 - :mod:`.record` — recording and replaying an encoder stream through the controller;
 - :mod:`.report` — status line, summary, telemetry, plot of a run.
 

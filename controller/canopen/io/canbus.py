@@ -1,9 +1,10 @@
 """Opening a real CAN bus like python-can's own tools (``-i/-c/-b``, config file, env vars).
 
-The flags come from ``can.cli.add_bus_arguments`` (python-can >= 4.6, docs/spec/tools.md#4);
-whatever they do not give is taken from python-can's configuration (``can.util.load_config``:
-the file given with ``--can-config``, else ``~/.canrc``, ``~/.can``, ``/etc/can.conf``, and
-the environment variables CAN_INTERFACE, CAN_CHANNEL, CAN_BITRATE).  Without a bitrate the bus.yml's
+The flags come from :func:`controller.cli.common.add_bus_arguments` (python-can's
+``can.cli.add_bus_arguments``, python-can >= 4.6, docs/spec/tools.md#4); whatever they do
+not give is taken from python-can's configuration (``can.util.load_config``: the file given
+with ``--can-config``, else ``~/.canrc``, ``~/.can``, ``/etc/can.conf``, and the environment
+variables CAN_INTERFACE, CAN_CHANNEL, CAN_BITRATE).  Without a bitrate the bus.yml's
 ``master.baudrate`` is used.
 """
 
@@ -26,12 +27,6 @@ log = logging.getLogger(__name__)
 
 #: the CiA 301 bit rates [kbit/s] (bus.yml ``master.baudrate``)
 BAUDRATES_KBIT = (10, 20, 50, 125, 250, 500, 800, 1000)
-
-
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    can.cli.add_bus_arguments(parser)
-    parser.add_argument("--can-config", metavar="FILE",
-                        help="python-can configuration file (default: ~/.canrc etc.)")
 
 
 def bus_config(args: argparse.Namespace, default_bitrate: int) -> dict[str, Any]:
