@@ -34,7 +34,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from canopen.objectdictionary import ObjectDictionary
 
@@ -42,6 +42,11 @@ from ...errors import ConfigError
 from ...yamlmarks import Section, suggest
 from ..io.canbus import BAUDRATES_KBIT
 from ..protocol import od as odm
+
+if TYPE_CHECKING:  # (the sections are read with the bus part: they import BusConfig)
+    from .demo import DemoConfig
+    from .simulation import SimulationConfig
+    from .tracking import TrackingConfig
 
 __all__ = ["BusConfig", "MasterConfig", "Options", "PdoEntry", "PdoSetting", "SdoWrite",
            "SlaveConfig", "parse_bus"]
@@ -142,16 +147,20 @@ class SlaveConfig:
 
 @dataclass(frozen=True)
 class BusConfig:
-    """A loaded bus.yml: dcfgen part, object dictionaries, and our dot sections."""
+    """A loaded bus.yml: dcfgen part, object dictionaries, and our dot sections.
+
+    Immutable: :func:`controller.canopen.config.load_bus_config` builds it complete (the
+    sections are added with :func:`dataclasses.replace`, never by mutation); a changed copy
+    is made the same way.  (The dicts are not frozen: do not change them either.)"""
 
     file: str
     options: Options
     master: MasterConfig
     slaves: dict[str, SlaveConfig]
     ods: dict[str, ObjectDictionary]
-    tracking: Any = None    # TrackingConfig | None
-    simulation: Any = None  # SimulationConfig | None
-    demo: Any = None        # DemoConfig | None
+    tracking: TrackingConfig | None = None
+    simulation: SimulationConfig | None = None
+    demo: DemoConfig | None = None
 
     @property
     def period_ns(self) -> int:

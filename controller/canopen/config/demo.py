@@ -20,13 +20,14 @@ measured from ``.tracking.conveyor.origin`` (the window uses the same u).  Keys:
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 from ...errors import ConfigError
 from ...yamlmarks import Section
 
 if TYPE_CHECKING:
     from .bus import BusConfig
+    from .tracking import TrackingConfig
 
 
 @dataclass(frozen=True)
@@ -65,7 +66,7 @@ def _types(s: Section) -> tuple[int, ...]:
     return tuple(out)
 
 
-def parse_demo(s: Section, cfg: BusConfig, tracking: Any) -> DemoConfig:
+def parse_demo(s: Section, cfg: BusConfig, tracking: TrackingConfig | None) -> DemoConfig:
     d = DemoConfig()
     pick = s.section("pick", {})
     place = s.section("place", {})

@@ -4,6 +4,7 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 from ...errors import ConfigError
@@ -39,7 +40,5 @@ def parse_bus_config(text: str, file: str, base_dir: Path | None = None, *,
         simulation = parse_simulation(top.section(".simulation"), cfg) \
             if ".simulation" in dot else None
         demo = parse_demo(top.section(".demo"), cfg, tracking) if ".demo" in dot else None
-        object.__setattr__(cfg, "tracking", tracking)
-        object.__setattr__(cfg, "simulation", simulation)
-        object.__setattr__(cfg, "demo", demo)
+        cfg = replace(cfg, tracking=tracking, simulation=simulation, demo=demo)
     return cfg

@@ -28,7 +28,6 @@ Device units (counts) for the drives, mm and s for the belt.  Every key is optio
 from __future__ import annotations
 
 import math
-
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
