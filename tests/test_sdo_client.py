@@ -8,9 +8,16 @@ import struct
 
 import pytest
 from canopen.objectdictionary import VISIBLE_STRING, ODVariable
+from canopen.sdo.exceptions import SdoAbortedError
 
 from controller.canopen.io.transport import SteppedTransport
-from controller.canopen.protocol.sdo import ABORT_TOGGLE, SdoClient
+from controller.canopen.protocol.sdo import (
+    ABORT_GENERAL,
+    ABORT_TOGGLE,
+    ABORT_VALUE_RANGE,
+    SdoAbortError,
+    SdoClient,
+)
 from controller.canopen.slave.world import SimWorld
 from controller.canopen.testing import load
 from controller.errors import CanError
@@ -81,3 +88,25 @@ def test_a_server_that_does_not_alternate_the_toggle_is_aborted(world):
     abort = sent[-1]
     assert abort[0] == 0x80 and abort[1:4] == bytes([0x08, 0x10, 0x00])
     assert struct.unpack_from("<I", abort, 4)[0] == ABORT_TOGGLE
+
+
+def test_one_sdo_abort_type_for_the_client_and_the_slaves():
+    """SdoAbortError is cantrack's CanError and python canopen's SdoAbortedError (what its
+    LocalNode SDO server answers with the code): one type on both sides."""
+    e = SdoAbortError(ABORT_VALUE_RANGE, "node 11 (x)", 0x60C2, 2, "writing")
+    assert isinstance(e, CanError) and isinstance(e, SdoAbortedError)
+    assert e.code == 0x06090030
+    assert str(e) == ("node 11 (x): SDO abort 06090030h (Value range of parameter exceeded) "
+                      "writing 60C2h:02")
+    assert str(SdoAbortError(ABORT_GENERAL)) == "SDO abort 08000000h (General error)"
+
+
+def test_a_simulated_device_refuses_with_the_same_abort_the_client_raises(world):
+    """A mode the simulated drive does not support written to 6060h (its on_write raises
+    SdoAbortError) comes back to the client as SdoAbortError with that code."""
+    sdo = SdoClient(world.transport, SERVO, "node 11 (x)", 0.05)
+    with pytest.raises(SdoAbortError) as info:
+        sdo.download(0x6060, 0, (99).to_bytes(1, "little", signed=True))
+    assert info.value.code == ABORT_VALUE_RANGE
+    assert info.value.index == 0x6060
+

@@ -49,26 +49,28 @@ from ...resources import data_path
 from ...tracking import Mode, TrackState
 from ..protocol import od as odm
 from ..protocol.pdo import INVALID, read_pdo_params
+from ..protocol.sdo import (
+    ABORT_COMMAND,
+    ABORT_DEVICE_STATE,
+    ABORT_GENERAL,
+    ABORT_LENGTH,
+    ABORT_NO_OBJECT,
+    ABORT_NO_SUB,
+    ABORT_PARAM_INCOMPATIBLE,
+    ABORT_PDO_LENGTH,
+    ABORT_PDO_MAPPING,
+    ABORT_READ_ONLY,
+    ABORT_STORE,
+    ABORT_VALUE_RANGE,
+    ABORT_WRITE_ONLY,
+    SdoAbortError,
+)
 
 if TYPE_CHECKING:
     from .cycle import Controller, CycleRecord
 
 EDS = data_path("eds", "cantrack-controller.eds")
 
-ABORT_TOGGLE = 0x05030000
-ABORT_COMMAND = 0x05040001
-ABORT_WRITE_ONLY = 0x06010001
-ABORT_READ_ONLY = 0x06010002
-ABORT_NO_OBJECT = 0x06020000
-ABORT_PDO_MAPPING = 0x06040041
-ABORT_PDO_LENGTH = 0x06040042
-ABORT_PARAM_INCOMPATIBLE = 0x06040043
-ABORT_LENGTH = 0x06070010
-ABORT_NO_SUB = 0x06090011
-ABORT_VALUE_RANGE = 0x06090030
-ABORT_GENERAL = 0x08000000
-ABORT_STORE = 0x08000020
-ABORT_DEVICE_STATE = 0x08000022
 
 
 #: 1000h-1FFFh objects a PLC may write (the rest is set by the bus configuration)
@@ -76,12 +78,6 @@ _WRITABLE_COMM = set(range(0x1400, 0x1600)) | set(range(0x1600, 0x1800)) \
     | set(range(0x1800, 0x1A00)) | set(range(0x1A00, 0x1C00))
 
 ENGAGE_VALUES = (int(Mode.OFF), int(Mode.ABSOLUTE), int(Mode.RELATIVE))
-
-
-class SdoAbort(Exception):
-    def __init__(self, code: int) -> None:
-        super().__init__(f"SDO abort {code:08X}h")
-        self.code = code
 
 
 @dataclass
@@ -198,8 +194,8 @@ class PlcNode:
             elif ccs == 1:
                 resp = self._download(data, index, sub)
             else:
-                raise SdoAbort(ABORT_COMMAND)
-        except SdoAbort as exc:
+                raise SdoAbortError(ABORT_COMMAND)
+        except SdoAbortError as exc:
             self.aborts.append((index, sub, exc.code))
             resp = struct.pack("<BHBI", 0x80, index, sub, exc.code)
         self.transport.send(0x580 + self.node_id, resp)
@@ -207,32 +203,32 @@ class PlcNode:
     def _lookup(self, index: int, sub: int) -> ODVariable:
         v = self._vars.get((index, sub))
         if v is None:
-            raise SdoAbort(ABORT_NO_SUB if index in self.od else ABORT_NO_OBJECT)
+            raise SdoAbortError(ABORT_NO_SUB if index in self.od else ABORT_NO_OBJECT)
         return v
 
     def _upload(self, index: int, sub: int) -> bytes:
         v = self._lookup(index, sub)
         if v.access_type == "wo":
-            raise SdoAbort(ABORT_WRITE_ONLY)
+            raise SdoAbortError(ABORT_WRITE_ONLY)
         raw = self._store.get((index, sub))
         if raw is None:
             raw = bytes(odm.size_bytes(v))
         n = len(raw)
         if not 1 <= n <= 4:
-            raise SdoAbort(ABORT_GENERAL)  # (no such object in this EDS)
+            raise SdoAbortError(ABORT_GENERAL)  # (no such object in this EDS)
         return struct.pack("<BHB", 0x43 | ((4 - n) << 2), index, sub) + raw + bytes(4 - n)
 
     def _download(self, data: bytes, index: int, sub: int) -> bytes:
         cmd = data[0]
         v = self._lookup(index, sub)
         if v.access_type in ("ro", "const"):
-            raise SdoAbort(ABORT_READ_ONLY)
+            raise SdoAbortError(ABORT_READ_ONLY)
         if not cmd & 0x02:
-            raise SdoAbort(ABORT_COMMAND)  # segmented download: not needed (1-4 bytes)
+            raise SdoAbortError(ABORT_COMMAND)  # segmented download: not needed (1-4 bytes)
         size = odm.size_bytes(v)
         n = 4 - ((cmd >> 2) & 0x3) if cmd & 0x01 else size
         if n != size:
-            raise SdoAbort(ABORT_LENGTH)
+            raise SdoAbortError(ABORT_LENGTH)
         raw = bytes(data[4:4 + n])
         value = self._decode(v, raw)
         self._check_range(v, value)
@@ -244,28 +240,28 @@ class PlcNode:
     def _check_range(v: ODVariable, value: Any) -> None:
         if v.data_type in (REAL32, REAL64):
             if math.isnan(value):
-                raise SdoAbort(ABORT_VALUE_RANGE)
+                raise SdoAbortError(ABORT_VALUE_RANGE)
             return
         lo, hi = getattr(v, "min", None), getattr(v, "max", None)
         if (lo is not None and value < lo) or (hi is not None and value > hi):
-            raise SdoAbort(ABORT_VALUE_RANGE)
+            raise SdoAbortError(ABORT_VALUE_RANGE)
 
     def _on_write(self, index: int, sub: int, value: Any, raw: bytes) -> None:
-        """Check and act on an SDO write (raise SdoAbort to refuse; stored afterwards)."""
+        """Check and act on an SDO write (raise SdoAbortError to refuse; stored afterwards)."""
         if index < 0x2000:
             if index not in _WRITABLE_COMM:
-                raise SdoAbort(ABORT_STORE)
+                raise SdoAbortError(ABORT_STORE)
             self._check_pdo_write(index, sub, value)
             self._pdo_dirty = True
         elif index == 0x2005:
             if value not in ENGAGE_VALUES:
-                raise SdoAbort(ABORT_VALUE_RANGE)
+                raise SdoAbortError(ABORT_VALUE_RANGE)
             if self.ctl.tracker is None:
-                raise SdoAbort(ABORT_DEVICE_STATE)
+                raise SdoAbortError(ABORT_DEVICE_STATE)
             self._engage(value)  # (an SDO write is an explicit command: acts every time)
         elif index == 0x2004:
             if value > 1:
-                raise SdoAbort(ABORT_VALUE_RANGE)
+                raise SdoAbortError(ABORT_VALUE_RANGE)
             self._trigger_input(value)
         elif index == 0x2010:
             tr = self.ctl.tracker
@@ -273,30 +269,30 @@ class PlcNode:
             if state is None and tr is not None:
                 state = tr.state
             if state is not None and state is not TrackState.OFF:
-                raise SdoAbort(ABORT_DEVICE_STATE)
+                raise SdoAbortError(ABORT_DEVICE_STATE)
             if not value > 0:
-                raise SdoAbort(ABORT_VALUE_RANGE)
+                raise SdoAbortError(ABORT_VALUE_RANGE)
             # stored only: the running tracker's limits are not changed yet
-            raise SdoAbort(ABORT_STORE)
+            raise SdoAbortError(ABORT_STORE)
 
     def _check_pdo_write(self, index: int, sub: int, value: int) -> None:
         """CiA 301: a mapping is written while its PDO is invalid and its sub 0 is 0."""
         if 0x1600 <= index <= 0x17FF or 0x1A00 <= index <= 0x1BFF:
             comm = index - 0x200
             if not int(self.get(comm, 1)) & INVALID:
-                raise SdoAbort(ABORT_PARAM_INCOMPATIBLE)
+                raise SdoAbortError(ABORT_PARAM_INCOMPATIBLE)
             if sub == 0:
                 total = sum(int(self.get(index, i)) & 0xFF for i in range(1, value + 1))
                 if total > 64:
-                    raise SdoAbort(ABORT_PDO_LENGTH)
+                    raise SdoAbortError(ABORT_PDO_LENGTH)
                 return
             if int(self.get(index, 0)) != 0:
-                raise SdoAbort(ABORT_PARAM_INCOMPATIBLE)
+                raise SdoAbortError(ABORT_PARAM_INCOMPATIBLE)
             obj, osub, bits = value >> 16, (value >> 8) & 0xFF, value & 0xFF
             if obj >= 0x1000:
                 var = self._vars.get((obj, osub))
                 if var is None or not var.pdo_mappable or len(var) != bits:
-                    raise SdoAbort(ABORT_PDO_MAPPING)
+                    raise SdoAbortError(ABORT_PDO_MAPPING)
 
     # -- commands -----------------------------------------------------------------------------
     def _engage(self, value: int) -> None:

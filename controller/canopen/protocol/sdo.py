@@ -10,6 +10,13 @@ as 1008h, 64-bit values, domains) segmented: 7 bytes per exchange with the toggl
 Errors name the node, the object (index:sub) and, for an abort, the abort code and its
 meaning: ``node 11 (x): SDO abort 06090030h (Value range of parameter exceeded) writing
 60C2h:02``.
+
+:class:`SdoAbortError` is the one SDO-abort type of cantrack, on both sides: the client
+raises it for an abort it receives, a slave (the simulated devices, the controller's own
+node) raises it to refuse a request.  It is a :class:`~controller.errors.CanError` and a
+python canopen ``SdoAbortedError`` (same ``code``, same text table ``CODES``), so canopen's
+``LocalNode`` SDO server answers it with that abort code.  The ``ABORT_*`` codes here are the
+CiA 301 codes cantrack sends.
 """
 
 from __future__ import annotations
@@ -21,24 +28,48 @@ from canopen.sdo.exceptions import SdoAbortedError
 from ...errors import CanError, CanTimeoutError
 from ..io.transport import Transport
 
-#: CiA 301 abort codes sent by this client
+#: CiA 301 abort codes cantrack sends (client and slaves); the texts: :func:`abort_text`
 ABORT_TOGGLE = 0x05030000          # toggle bit not alternated
+ABORT_COMMAND = 0x05040001         # client/server command specifier not valid or unknown
 ABORT_OUT_OF_MEMORY = 0x05040005   # out of memory
+ABORT_WRITE_ONLY = 0x06010001      # attempt to read a write only object
+ABORT_READ_ONLY = 0x06010002       # attempt to write a read only object
+ABORT_NO_OBJECT = 0x06020000       # object does not exist in the object dictionary
+ABORT_PDO_MAPPING = 0x06040041     # object cannot be mapped to the PDO
+ABORT_PDO_LENGTH = 0x06040042      # the mapped objects would exceed the PDO length
+ABORT_PARAM_INCOMPATIBLE = 0x06040043  # general parameter incompatibility
+ABORT_LENGTH = 0x06070010          # data type does not match, length does not match
+ABORT_NO_SUB = 0x06090011          # sub-index does not exist
+ABORT_VALUE_RANGE = 0x06090030     # value range of parameter exceeded
+ABORT_GENERAL = 0x08000000         # general error
+ABORT_STORE = 0x08000020           # data cannot be transferred or stored
+ABORT_DEVICE_STATE = 0x08000022    # ... because of the present device state
 #: the longest segmented upload accepted [bytes]
 MAX_SEGMENTED_BYTES = 65536
 
 
 def abort_text(code: int) -> str:
+    """The CiA 301 text of abort ``code`` (python canopen's table)."""
     return SdoAbortedError.CODES.get(code, "unknown abort code")
 
 
-class SdoAbortError(CanError):
-    """The slave aborted an SDO transfer."""
+class SdoAbortError(CanError, SdoAbortedError):
+    """An SDO transfer aborted with ``code`` (CiA 301); where known, by or at whom
+    (``label``), for which object (``index``:``sub``) and while doing what (``action``)."""
 
-    def __init__(self, label: str, index: int, sub: int, code: int, action: str) -> None:
-        self.label, self.index, self.sub, self.code = label, index, sub, code
-        super().__init__(f"{label}: SDO abort {code:08X}h ({abort_text(code)}) {action} "
-                         f"{index:04X}h:{sub:02X}")
+    def __init__(self, code: int, label: str | None = None, index: int | None = None,
+                 sub: int | None = None, action: str = "") -> None:
+        self.code, self.label, self.index, self.sub, self.action = code, label, index, sub, action
+        where = f" {index:04X}h:{sub or 0:02X}" if index is not None else ""
+        head = f"{label}: " if label else ""
+        CanError.__init__(self, f"{head}SDO abort {code:08X}h ({abort_text(code)})"
+                                + (f" {action}" if action else "") + where)
+
+    def __str__(self) -> str:  # (canopen's __str__ would be "Code 0x...")
+        return CanError.__str__(self)
+
+    __eq__ = object.__eq__  # (canopen compares codes; an exception is equal only to itself)
+    __hash__ = object.__hash__
 
 
 class SdoTimeoutError(CanTimeoutError):
@@ -93,7 +124,7 @@ class SdoClient:
                            f"{index:04X}h:{sub:02X}")
         r_index, r_sub = struct.unpack_from("<HB", resp, 1)
         if resp[0] == 0x80:
-            raise SdoAbortError(self.label, index, sub, struct.unpack_from("<I", resp, 4)[0],
+            raise SdoAbortError(struct.unpack_from("<I", resp, 4)[0], self.label, index, sub,
                                 action)
         if mux and (r_index, r_sub) != (index, sub):
             raise CanError(f"{self.label}: SDO response for {r_index:04X}h:{r_sub:02X} while "

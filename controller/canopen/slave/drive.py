@@ -48,12 +48,11 @@ from __future__ import annotations
 import math
 from typing import Any
 
-from canopen.sdo import SdoAbortedError
-
 from ..config.simulation import DriveParams
 from ..protocol import cia402
 from ..protocol.cia402 import State
-from .node import ABORT_VALUE_RANGE, NMT_OPERATIONAL, SimNode
+from ..protocol.sdo import ABORT_VALUE_RANGE, SdoAbortError
+from .node import NMT_OPERATIONAL, SimNode
 
 EMCY_FOLLOWING_ERROR = 0x8611
 EMCY_HEARTBEAT = 0x8130
@@ -382,11 +381,11 @@ class SimDrive(SimNode):
                 self.homing_status = None
             supported = int(self.load(0x6502, 0))
             if value <= 0 or not supported >> (value - 1) & 1:
-                raise SdoAbortedError(ABORT_VALUE_RANGE)
+                raise SdoAbortError(ABORT_VALUE_RANGE)
             self.store(0x6061, 0, value)
             self._params.clear()
         elif index == 0x60C2 and sub == 2 and not -6 <= value <= 0:
-            raise SdoAbortedError(ABORT_VALUE_RANGE)
+            raise SdoAbortError(ABORT_VALUE_RANGE)
         elif index == 0x60B8:
             self._arm_probe(value)
 

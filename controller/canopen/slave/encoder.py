@@ -23,6 +23,7 @@ import random
 from typing import Any
 
 from ..config.simulation import EncoderParams
+from ..protocol.sdo import ABORT_VALUE_RANGE, SdoAbortError
 from .node import SimNode
 
 
@@ -102,8 +103,5 @@ class SimEncoder(SimNode):
         if index == 0x6003:
             modulus = int(self.load(0x6002, 0))
             if modulus and not 0 <= value < modulus:
-                from canopen.sdo import SdoAbortedError
-
-                from .node import ABORT_VALUE_RANGE
-                raise SdoAbortedError(ABORT_VALUE_RANGE)
+                raise SdoAbortError(ABORT_VALUE_RANGE)
             self._offset += value - self.true_counts(self.clock.now_ns())

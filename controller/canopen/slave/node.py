@@ -32,22 +32,23 @@ from typing import Any
 
 import canopen
 from canopen.objectdictionary import ODVariable
-from canopen.sdo import SdoAbortedError
 
 from ..io.clock import Clock
 from ..protocol import od as odm
 from ..protocol.pdo import INVALID, read_pdo_params
+from ..protocol.sdo import (
+    ABORT_GENERAL,
+    ABORT_PARAM_INCOMPATIBLE,
+    ABORT_PDO_LENGTH,
+    ABORT_PDO_MAPPING,
+    SdoAbortError,
+)
 
 NMT_INITIALISING = 0
 NMT_STOPPED = 4
 NMT_OPERATIONAL = 5
 NMT_PRE_OPERATIONAL = 127
 
-ABORT_PDO_MAPPING = 0x06040041
-ABORT_PDO_LENGTH = 0x06040042
-ABORT_PARAM_INCOMPATIBLE = 0x06040043
-ABORT_VALUE_RANGE = 0x06090030
-ABORT_DEVICE_STATE = 0x08000022
 
 
 
@@ -308,10 +309,10 @@ class SimNode:
     # -- SDO write hook ------------------------------------------------------------------------
     def _on_sdo_write(self, index: int, subindex: int, od: ODVariable, data: bytes) -> None:
         if not self.powered:
-            raise SdoAbortedError(0x08000000)
+            raise SdoAbortError(ABORT_GENERAL)
         code = self._sdo_rejects.get((index, subindex))
         if code is not None:
-            raise SdoAbortedError(code)
+            raise SdoAbortError(code)
         if 0x1400 <= index <= 0x1BFF:
             self._check_pdo_write(index, subindex, data)
             self._pdo_dirty = True
@@ -336,17 +337,17 @@ class SimNode:
         comm = index - 0x200
         cob = int(self.load(comm, 1))
         if not cob & INVALID:
-            raise SdoAbortedError(ABORT_PARAM_INCOMPATIBLE)
+            raise SdoAbortError(ABORT_PARAM_INCOMPATIBLE)
         if sub != 0:
             if int(self.load(index, 0)) != 0:
-                raise SdoAbortedError(ABORT_PARAM_INCOMPATIBLE)
+                raise SdoAbortError(ABORT_PARAM_INCOMPATIBLE)
             value = struct.unpack_from("<I", data)[0]
             obj, osub, bits = value >> 16, (value >> 8) & 0xFF, value & 0xFF
             if obj < 0x1000:
                 return  # dummy
             var = odm.variable(self.od, obj, osub)
             if var is None or not var.pdo_mappable or len(var) != bits:
-                raise SdoAbortedError(ABORT_PDO_MAPPING)
+                raise SdoAbortError(ABORT_PDO_MAPPING)
             return
         n = data[0]
         total = 0
@@ -354,10 +355,10 @@ class SimNode:
             try:
                 entry = int(self.load(index, i))
             except KeyError:
-                raise SdoAbortedError(ABORT_PDO_MAPPING) from None
+                raise SdoAbortError(ABORT_PDO_MAPPING) from None
             total += entry & 0xFF
         if total > 64:
-            raise SdoAbortedError(ABORT_PDO_LENGTH)
+            raise SdoAbortError(ABORT_PDO_LENGTH)
 
     # -- PDO engine ----------------------------------------------------------------------------
     def _rebuild_pdos(self) -> None:
@@ -517,7 +518,7 @@ class SimNode:
         """RPDO ``number`` (mapping ``objects``) was written into the OD."""
 
     def on_write(self, index: int, sub: int, value: Any) -> None:
-        """An SDO write (raise SdoAbortedError to refuse it; stored after this returns)."""
+        """An SDO write (raise SdoAbortError to refuse it; stored after this returns)."""
 
     def on_reset(self) -> None:
         """NMT reset node: back to the power-on state (the physical state stays)."""
