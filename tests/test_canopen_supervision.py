@@ -169,3 +169,22 @@ def test_enable_timeout_names_the_drive(make):
         ctl.run(max_cycles=2000)
     assert ctl.phase is Phase.STOPPED
     assert [e.kind for e in ctl.events if e.reaction] == ["enable_timeout"]
+
+
+def test_event_kinds_are_an_enum_and_an_unknown_kind_is_refused():
+    from controller.canopen.master.events import EventKind, EventLog
+    log = EventLog()
+    e = log.add(3, 0.3, "node 11 (x)", "heartbeat_lost", "no heartbeat", "quick stop")
+    assert e.kind is EventKind.HEARTBEAT_LOST
+    assert e.as_dict()["kind"] == "heartbeat_lost" and "heartbeat_lost: no heartbeat" in str(e)
+    assert log.of_kind(EventKind.HEARTBEAT_LOST) == [e]
+    with pytest.raises(ValueError, match="unknown event kind 'heartbeat_lsot'"):
+        log.add(3, 0.3, "node 11 (x)", "heartbeat_lsot", "typo")
+
+
+def test_job_results_are_an_enum():
+    from controller.canopen.apps.axis_motion import JobResult, MotionReport
+    r = MotionReport("home", "y", ok=True, result="SKIPPED")
+    assert r.result is JobResult.SKIPPED and "SKIPPED" in r.summary()
+    with pytest.raises(ValueError):
+        MotionReport("move", "y", result="ERROR_TYPO")

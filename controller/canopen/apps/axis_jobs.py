@@ -77,6 +77,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from enum import StrEnum
 from typing import TYPE_CHECKING, Any
 
 from ...errors import CanError
@@ -117,6 +118,24 @@ class MotionError(CanError):
     """A motion job could not be started (bad target, missing 60FDh mapping, ...)."""
 
 
+class JobResult(StrEnum):
+    """How a job ended (a ``str``: reports show the value).  The :class:`~controller.motion.
+    MotionResult` names of the pure motion objects, and what only the CANopen job knows."""
+
+    IDLE = "IDLE"                              #: not started (yet)
+    WORKING = "WORKING"
+    FINISHED = "FINISHED"                      #: done
+    SKIPPED = "SKIPPED"                        #: homing all axes: this one has no homing:
+    ERROR = "ERROR"
+    ERROR_LIMIT_SWITCH = "ERROR_LIMIT_SWITCH"  #: a limit switch (60FDh bit 0/1)
+    ERROR_TIMEOUT = "ERROR_TIMEOUT"            #: max_time_s, or a homing time-out
+    ERROR_SENSOR = "ERROR_SENSOR"              #: sensors or touch probe contradict the sequence
+    ERROR_ABORTED = "ERROR_ABORTED"
+    ERROR_LIMIT = "ERROR_LIMIT"                #: a setpoint outside the axis' min/max
+    ERROR_HOMING = "ERROR_HOMING"              #: the drive's homing mode reported an error
+    ERROR_SET_POSITION = "ERROR_SET_POSITION"  #: setting the homed position (method 37) failed
+
+
 @dataclass
 class MotionReport:
     """The result of one job on one axis (mm/deg, counts, s)."""
@@ -124,7 +143,7 @@ class MotionReport:
     kind: str  #: "home" | "move" | "jog"
     axis: str
     ok: bool = False
-    result: str = "IDLE"  #: :class:`~controller.motion.MotionResult` name (or TIMEOUT ...)
+    result: JobResult = JobResult.IDLE  #: (a :class:`JobResult` value is accepted too)
     message: str = ""
     states: list[str] = field(default_factory=list)  #: states passed, in order
     start_mm: float = math.nan
@@ -160,6 +179,9 @@ class MotionReport:
     actuals: list[int] = field(default_factory=list)  #: 6064h received each cycle [counts]
     inputs: list[int] = field(default_factory=list)  #: 60FDh each cycle (homing)
 
+    def __post_init__(self) -> None:
+        self.result = JobResult(self.result)
+
     @property
     def latch_difference_mm(self) -> float | None:
         """Touch-probe latch - sensor latch [mm] (None unless both exist)."""
@@ -174,7 +196,7 @@ class MotionReport:
 
     def summary(self) -> str:
         unit = axis_unit(self.axis)
-        if self.result == "SKIPPED":
+        if self.result is JobResult.SKIPPED:
             return f"{self.kind} {self.axis}: SKIPPED: {self.message}"
         lines = [f"{self.kind} {self.axis}: {'OK' if self.ok else 'FAILED'} ({self.result})"
                  + (f": {self.message}" if self.message else ""),
@@ -288,7 +310,7 @@ class Job:
             return
         self.done = True
         r = self.report
-        r.ok, r.result, r.message = ok, result, message
+        r.ok, r.result, r.message = ok, JobResult(result), message
         r.cycles = k - self._k0 + 1
         r.time_s = r.cycles * self.period_s
 

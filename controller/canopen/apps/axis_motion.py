@@ -25,6 +25,7 @@ from .axis_jobs import (
     DriveHomingJob,
     GotoYJob,
     Job,
+    JobResult,
     JogJob,
     MotionError,
     MotionReport,
@@ -34,7 +35,7 @@ from .axis_jobs import (
 )
 
 __all__ = ["DI_HOME", "DI_NEG_LIMIT", "DI_POS_LIMIT", "DI_SLOW_DOWN", "DriveHomingJob",
-           "GotoYJob", "Job", "JogJob", "MotionController", "MotionError", "MotionReport",
+           "GotoYJob", "Job", "JobResult", "JogJob", "MotionController", "MotionError", "MotionReport",
            "MoveJob", "NoHomingJob", "ProgressFn", "axis_config", "check_max_time", "home",
            "jog", "load_axes_config", "make_home_job", "move", "run_job", "run_jobs"]
 

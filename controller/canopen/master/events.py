@@ -4,8 +4,31 @@ from __future__ import annotations
 
 import logging
 from dataclasses import asdict, dataclass
+from enum import StrEnum
 
 log = logging.getLogger("controller.canopen")
+
+
+class EventKind(StrEnum):
+    """What an :class:`Event` is about (a ``str``: reports and logs show the value)."""
+
+    BOOT = "boot"                        #: a node booted and was configured
+    MISSING = "missing"                  #: a node did not answer at boot
+    ENABLED = "enabled"                  #: all drives are OPERATION ENABLED
+    ENABLE_TIMEOUT = "enable_timeout"    #: a drive did not reach OPERATION ENABLED in time
+    FAULT_RESET = "fault_reset"          #: a drive fault was reset while enabling
+    STOPPED = "stopped"                  #: the quick stop is done, all drives stand still
+    LIMIT = "limit"                      #: a setpoint outside an axis limit
+    EMCY = "emcy"                        #: an EMCY message
+    DRIVE_FAULT = "drive_fault"          #: a drive in FAULT (statusword)
+    DRIVE_SILENT = "drive_silent"        #: a drive's TPDO missing for silent_cycles
+    DRIVE_DISABLED = "drive_disabled"    #: a drive left OPERATION ENABLED
+    FOLLOWING_ERROR = "following_error"  #: 6041h bit 13 in CSP
+    HEARTBEAT_LOST = "heartbeat_lost"    #: no heartbeat within the consumer time
+    NMT_STATE = "nmt_state"              #: a node's heartbeat shows a state other than OPERATIONAL
+    MASTER_SILENT = "master_silent"      #: the encoder went silent: de-sync
+    MASTER_BACK = "master_back"          #: the encoder sends again
+    ITEM_MISSED = "item_missed"          #: the demo: an item left its window unpicked
 
 
 @dataclass(frozen=True, slots=True)
@@ -13,7 +36,7 @@ class Event:
     cycle: int  # -1 during the boot
     t_s: float  # controller time [s]
     source: str  # "node 11 (x)", "controller", ...
-    kind: str  # boot, heartbeat_lost, emcy, drive_fault, following_error, master_silent, ...
+    kind: EventKind
     detail: str
     reaction: str = ""
 
@@ -32,14 +55,20 @@ class EventLog:
     def __init__(self) -> None:
         self.events: list[Event] = []
 
-    def add(self, cycle: int, t_s: float, source: str, kind: str, detail: str,
+    def add(self, cycle: int, t_s: float, source: str, kind: EventKind | str, detail: str,
             reaction: str = "", level: int = logging.WARNING) -> Event:
+        """Record and log an event; ``kind`` an :class:`EventKind` (or its value)."""
+        try:
+            kind = EventKind(kind)
+        except ValueError:
+            raise ValueError(f"unknown event kind {kind!r}: add it to EventKind "
+                             "(controller.canopen.master.events)") from None
         e = Event(cycle, t_s, source, kind, detail, reaction)
         self.events.append(e)
         log.log(level, "%s", e)
         return e
 
-    def of_kind(self, kind: str) -> list[Event]:
+    def of_kind(self, kind: EventKind | str) -> list[Event]:
         return [e for e in self.events if e.kind == kind]
 
     def __iter__(self):
