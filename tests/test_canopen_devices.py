@@ -29,7 +29,6 @@ class RawMaster:
         for cob in list(range(0x080, 0x100)) + list(range(0x180, 0x500)) + \
                 list(range(0x700, 0x780)):
             self.t.subscribe(cob, self._rec)
-        self.counter = 0
 
     def _rec(self, can_id: int, data: bytes, t_ns: int) -> None:
         self.frames.append((t_ns, can_id, data))
@@ -45,9 +44,9 @@ class RawMaster:
         self.t.run_until(self.t.clock.now_ns() + int(ms * MS))
 
     def sync(self, rpdos: dict[int, bytes] | None = None, period_ms: float = 2.0) -> None:
-        """Send SYNC, then the RPDOs (applied at the next SYNC), then wait one period."""
-        self.counter = self.counter % 16 + 1
-        self.t.send(0x80, bytes((self.counter,)))
+        """Send SYNC (without counter: the devices' 1019h is 0 as in their EDS, CiA 301),
+        then the RPDOs (applied at the next SYNC), then wait one period."""
+        self.t.send(0x80, b"")
         self.run(0)
         for cob, data in (rpdos or {}).items():
             self.t.send(cob, data)

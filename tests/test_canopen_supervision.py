@@ -75,7 +75,7 @@ def test_drive_fault_quick_stops_the_others(make):
     ctl.run(max_cycles=2000)
     first = reactions(ctl)[0]
     assert first.kind == "emcy" and first.source == "node 11 (x)"
-    assert "EMCY 2310h (Current)" in first.detail
+    assert "EMCY 2310h (continuous over-current)" in first.detail
     assert first.cycle == first_cycle_after(ctl, T_FAULT)  # EMCY seen in that cycle
     kinds = {e.kind for e in ctl.events}
     assert "drive_fault" in kinds
@@ -91,7 +91,7 @@ def test_drive_emcy_without_fault_stops(make):
     ctl.run(max_cycles=2000)
     first = reactions(ctl)[0]
     assert (first.kind, first.source) == ("emcy", "node 12 (y)")
-    assert "4210h (Temperature)" in first.detail
+    assert "4210h (excess temperature device)" in first.detail
     assert_all_stopped(world, ctl)
 
 

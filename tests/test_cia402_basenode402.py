@@ -17,11 +17,11 @@ import canopen
 import pytest
 from canopen.profiles.p402 import BaseNode402
 
-from controller.canopen.io.clock import RealtimeClock
 from controller.canopen.config import load_bus_config
+from controller.canopen.io.clock import RealtimeClock
+from controller.canopen.io.transport import DeviceThread, virtual_bus
 from controller.canopen.slave.rack import DeviceRack
 from controller.canopen.testing import EDS_DIR, bus_yml
-from controller.canopen.io.transport import DeviceThread, virtual_bus
 
 SYNC_S = 0.01
 X = 11

@@ -41,6 +41,8 @@ ENCODER, X, Y = 10, 11, 12
 KILL_AT_SYNC = 70
 DURATION_S = 10.0
 EXIT_REACTION = 3
+#: a reaction happened and a drive's stop could not be confirmed (y is gone)
+EXIT_UNCONFIRMED = 4
 CANTRACK = [sys.executable, "-m", "controller.cli"]
 
 
@@ -180,12 +182,12 @@ def _running_window(s: Run):
 def test_processes_and_exit_codes(session):
     res = session.result
     assert res["ok"], res
-    assert res["run_returncode"] == EXIT_REACTION, _tail(session.out / "run.out")
+    assert res["run_returncode"] == EXIT_UNCONFIRMED, _tail(session.out / "run.out")
     assert res["sim_ex_returncode"] == 0, _tail(session.out / "sim_ex.out")
     assert res["sim_y_returncode"] == -signal.SIGKILL
     assert res["candump_returncode"] == 0 and res["capture_dropped"] == 0
     assert len(session.frames) == res["capture_frames"] > 0
-    assert session.report["exit_code"] == EXIT_REACTION
+    assert session.report["exit_code"] == EXIT_UNCONFIRMED
 
 
 @pytestmark_vcan
@@ -278,11 +280,11 @@ def test_enable_track_desync(session):
     rep = session.report
     states = [(c["phase"], c["state"]) for c in rep["state_changes"]]
     # enable, then (engage) SYNCING -> SYNCED, (disengage) DESYNCING -> OFF; after the kill
-    # the quick stop (phase stopping)
+    # the controlled stop (phase stopping, then stopped: x confirmed, y unconfirmed)
     assert states[0] == ("enabling", "OFF"), states
     assert running_states(rep) == TRACK_CYCLE == ["OFF", "SYNCING", "SYNCED", "DESYNCING",
                                                    "OFF"], states
-    assert states[-1][0] == "stopping", states
+    assert [p for p, _ in states[-2:]] == ["stopping", "stopped"], states
     i_run = states.index(("running", "OFF"))
     i_sync = states.index(("running", "SYNCING"))
     changes = rep["state_changes"]
@@ -324,7 +326,17 @@ def test_heartbeat_timeout_reaction_on_bus_and_report(session):
     sw = [int.from_bytes(f.data[:2], "little") for f in _of(fr, Kind.PDO)
           if f.can_id == 0x18B and f.time_s > qs[0].time_s]
     assert sw and (sw[-1] & 0x6F) != 0x27, [hex(s) for s in sw[-5:]]
-    assert rep["final_phase"] in ("stopping", "stopped")
+    # the controlled stop: x confirmed by its statusword; y (killed) escalated through every
+    # stage (NMT start, disable voltage, NMT stop) and reported unconfirmed
+    assert rep["final_phase"] == "stopped"
+    drives = {d["node_id"]: d for d in rep["drives"]}
+    assert drives[X]["confirmed"] and drives[X]["state"] in ("switch on disabled",
+                                                             "quick stop active"), drives
+    assert not drives[Y]["confirmed"] and drives[Y]["stage"] == "unconfirmed", drives
+    esc = [e["detail"] for e in rep["events"] if e["kind"] == "stop_escalated" and
+           e["node"] == Y]
+    assert len(esc) == 3, rep["events"]
+    assert [e["node"] for e in rep["events"] if e["kind"] == "stop_unconfirmed"] == [Y]
 
 
 # ---------------------------------------------------------------------------------------------

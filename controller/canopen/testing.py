@@ -87,7 +87,7 @@ _TRACKING = """\
     planner: softmc
     mode: absolute
   window: {{start: 250, end: 900}}
-  timeouts: {{boot_up_s: 0.1, sdo_s: 0.05, enable_s: 0.2}}
+  timeouts: {{boot_up_s: 0.1, sdo_s: 0.05, enable_s: 0.2, stop_s: 0.1}}
 
 .simulation:
   boot_delay_s: 0.005

@@ -13,9 +13,12 @@ producer takes over.  Heartbeat supervision of the slaves counts from the start 
 
 SIGTERM and Ctrl-C stop the run like the end of ``--duration``: disable the drives, write the
 report, exit (``--ready-file PATH`` tells a script when that holds: it is written once the
-bus is open and the boot starts).  Exit codes: 0 = normal end; 3 = a supervision reaction happened (quick stop of
-the drives: heartbeat lost, drive fault, EMCY, following error, ...); 2 = an error (bad
-configuration, the boot failed; one line on stderr).
+bus is open and the boot starts).  Exit codes: 0 = normal end; 3 = a supervision reaction
+happened (quick stop of the drives: heartbeat lost, drive fault, EMCY, following error,
+another actor, ...) and every drive confirmed its stop; 4 = a reaction happened and a drive's
+stop could not be confirmed (after the escalation, :mod:`.stopping`); 2 = an error (bad
+configuration, the boot failed, an internal error in the cycle after the controlled stop;
+one line on stderr).  Never 0 after a fault.
 
 ``--report run.json``: a machine-readable report (see :func:`run_report`): the configuration
 (SYNC period, counter overflow, heartbeats, PDO COB-IDs), every event (cycle, time, node,
@@ -61,7 +64,7 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
     return p
 
 
-#: exit code when a supervision reaction (quick stop) happened
+#: exit code when a supervision reaction (quick stop) happened (:meth:`Controller.exit_code`)
 EXIT_REACTION = 3
 
 _STATE_NAMES = {0: "OFF", 1: "SYNCING", 2: "SYNCED", 3: "DESYNCING"}
@@ -104,6 +107,9 @@ class BootHeartbeat:
 
     def unsubscribe(self, can_id: int, callback=None) -> None:
         self.inner.unsubscribe(can_id, callback)
+
+    def subscribe_errors(self, callback) -> None:
+        self.inner.subscribe_errors(callback)
 
     def run_until(self, deadline_ns: int, done=None, precise: bool = False) -> bool:
         if not self.active:
@@ -159,6 +165,9 @@ def run_report(ctl: Controller, changes: list[dict], pdo_cycles: list[list[int]]
         "boot_s": (ctl.boot_result.duration_ns / 1e9) if ctl.boot_result else None,
         "cycles": ctl.k, "wall_s": wall_s, "final_phase": ctl.phase.value,
         "reactions": sum(1 for e in ctl.events if e.reaction),
+        "drives": [s.as_dict() for s in ctl.stops],
+        "bad_frames": {f"{cob:03X}h": n for cob, n in sorted(ctl.hygiene.counts.items())},
+        "other_actors": dict(ctl.actors.counts),
         "events": events,
         "state_changes": changes,
         "sent_pdos_per_sync": [list(c) for c in pdo_cycles],
@@ -192,7 +201,6 @@ def main(argv: list[str] | None = None, prog: str = "cantrack run") -> int:
     changes: list[dict] = []
     prev: list = [None]
     terminated = [False]
-    max_cycles = cyc(args.duration)
 
     def on_term(signum, frame) -> None:
         terminated[0] = True
@@ -213,11 +221,9 @@ def main(argv: list[str] | None = None, prog: str = "cantrack run") -> int:
             status.show(rec.t_s, status_line(ctl, rec))
 
     def stop() -> bool:
-        # SIGTERM; or, during a quick stop, --duration over (counted from the cycle start):
-        # a quick stop may never end when a drive is gone (its last statusword stays).
-        # While running, --duration counts from the tracking start (the application's end).
-        return terminated[0] or (ctl.phase is Phase.STOPPING and max_cycles is not None
-                                 and ctl.k >= max_cycles)
+        # SIGTERM.  (A controlled stop ends by itself: confirmed, or unconfirmed after its
+        # escalation; while running, --duration counts from the tracking start.)
+        return terminated[0]
 
     inner = RealtimeTransport(bus)
     transport = BootHeartbeat(inner, cfg.master.node_id, cfg.master.heartbeat_producer_ms,
@@ -245,6 +251,7 @@ def main(argv: list[str] | None = None, prog: str = "cantrack run") -> int:
             end = "sigterm"
         except CanError as exc:
             end, error = "error", str(exc)
+            ctl.final_states()
             if args.report:
                 write_json_atomic(args.report, run_report(ctl, changes, transport.cycles, 2, end,
                                                     time.perf_counter() - wall0, error))
@@ -253,8 +260,7 @@ def main(argv: list[str] | None = None, prog: str = "cantrack run") -> int:
         canbus.set_sigterm(old_term)
         transport.close()
         status.close()
-    reacted = any("quick stop" in e.reaction for e in ctl.events)
-    code = EXIT_REACTION if reacted else 0
+    code = ctl.exit_code()
     if args.telemetry:
         write_telemetry(args.telemetry, ctl)
     if args.report:

@@ -123,7 +123,7 @@ def _key(paths: list[Path]) -> str:
     return h.hexdigest()[:16]
 
 
-def _stack(root: Path, versions: tuple[str, ...]) -> CanopenStack:
+def stack_at(root: Path, versions: tuple[str, ...]) -> CanopenStack:
     linux = root / "CANopenLinux"
     demo = root / "CANopenDemo" / "demo"
     return CanopenStack(root, linux / "canopend", linux / "cocomm" / "cocomm",
@@ -166,7 +166,7 @@ def build_stack(directory: Path | None = None, cache: Path | None = None) -> Can
     base = cache if cache is not None else cache_dir()
     base.mkdir(parents=True, exist_ok=True)
     root = base / f"canopen-{_key(paths)}"
-    stack = _stack(root, versions)
+    stack = stack_at(root, versions)
     with (base / ".lock").open("w") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)  # one build at a time (parallel test sessions)
         if (root / "done").is_file():
@@ -188,7 +188,7 @@ def build_stack(directory: Path | None = None, cache: Path | None = None) -> Can
             if not link.exists():
                 link.symlink_to("../CANopenLinux")
             _make(["make", f"GIT_VERSION={versions[ARCHIVES.index('CANopenDemo')]}"], demo, log)
-            built = _stack(work, versions)
+            built = stack_at(work, versions)
             for p in (built.canopend, built.cocomm, built.demo_device, built.demo_eds):
                 if not p.is_file():
                     raise VendorError(f"building the independent CANopen stack: {p} missing "

@@ -167,9 +167,7 @@ def run_jobs(ctl: MotionController, max_time_s: float = 600.0,
             ctl.step()
             if ctl.phase is Phase.RUNNING and ctl.all_done:
                 break
-            if ctl.phase is Phase.STOPPED:
-                break
-            if ctl.phase is Phase.STOPPING and ctl._stop_cycles > ctl.STOP_CYCLES_MAX:
+            if ctl.phase is Phase.STOPPED:  # (a stop ends confirmed or unconfirmed)
                 break
         if ctl.phase is Phase.RUNNING:
             # let the drive settle on the last setpoint before reading the end position

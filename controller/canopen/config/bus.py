@@ -381,11 +381,20 @@ def _pdo(s: Section, number: int, is_rpdo: bool, od: ObjectDictionary, eds: str)
             raise s.error("mapping", f"maps {bits} bits, a CAN frame holds at most 64",
                           at_value=False)
         mapping = tuple(entries)
+    deadline = s.int("event_deadline", None, min=0, max=0xFFFF)
+    if deadline is not None:
+        comm = (0x1400 if is_rpdo else 0x1800) + number - 1
+        if not is_rpdo:
+            raise s.error("event_deadline", "is an RPDO setting (14xxh:05, the slave's deadline "
+                                            "monitoring); a TPDO has event_timer")
+        if odm.variable(od, comm, 5) is None:
+            raise s.error("event_deadline", f"cannot be applied: {eds} has no {comm:04X}h:05 "
+                                            "(event timer / deadline monitoring)")
     setting = PdoSetting(
         number=number, enabled=s.bool("enabled", True), cob_id=cob, transmission=trans,
         inhibit_time=s.int("inhibit_time", None, min=0, max=0xFFFF),
         event_timer=s.int("event_timer", None, min=0, max=0xFFFF),
-        event_deadline=s.int("event_deadline", None, min=0, max=0xFFFF),
+        event_deadline=deadline,
         sync_start=s.int("sync_start", None, min=0, max=240),
         mapping=mapping, line=s.head,
         cob_id_line=s.value_line("cob_id") if s.has("cob_id") else None)

@@ -57,6 +57,8 @@ class PdoState:
     transmission: int = 0
     inhibit_time: int = 0
     event_timer: int = 0
+    #: RPDO 14xxh:05: the deadline monitoring time of the slave's consumer [ms] (0 = off)
+    event_deadline: int = 0
     sync_start: int = 0
     mapping: list[tuple[int, int, int]] = field(default_factory=list)  # (index, sub, bits)
     line: int | None = None
@@ -102,6 +104,8 @@ def pdo_from_od(od: ObjectDictionary, kind: str, number: int) -> PdoState | None
         p.cob_id = _var_default(od, comm, 1)
     if highest >= 2:
         p.transmission = _var_default(od, comm, 2)
+    if kind == "rpdo" and highest >= 5 and odm.variable(od, comm, 5) is not None:
+        p.event_deadline = _var_default(od, comm, 5)
     if kind == "tpdo":
         if highest >= 3 and odm.variable(od, comm, 3) is not None:
             p.inhibit_time = _var_default(od, comm, 3)
@@ -147,6 +151,13 @@ def _configure_pdo(p: PdoState, s: PdoSetting, od: ObjectDictionary, node_id: in
             p.event_timer = s.event_timer
             if is_tpdo:
                 sdo.append(SdoValue(comm, 5, s.event_timer, 2))
+        if s.event_deadline is not None and s.event_deadline != p.event_deadline:
+            # (dcf-tools 2.4.2 writes the *event_timer*'s value here, a bug: we write the
+            # event_deadline itself; the config loader refuses it for a TPDO or an EDS
+            # without 14xxh:05)
+            p.event_deadline = s.event_deadline
+            if not is_tpdo:
+                sdo.append(SdoValue(comm, 5, s.event_deadline, 2))
         if s.sync_start is not None and s.sync_start != p.sync_start:
             p.sync_start = s.sync_start
             if is_tpdo:
@@ -257,26 +268,64 @@ def pdo_enable_conflicts(cfg: BusConfig) -> list[tuple[str, str, int, int | None
     return out
 
 
+#: CiA 301 (7.3.5, table 3): CAN-IDs reserved for the predefined connection set and NMT;
+#: a PDO must not use them
+RESTRICTED_CAN_IDS = ((0x000, 0x000), (0x001, 0x07F), (0x101, 0x180), (0x581, 0x5FF),
+                      (0x601, 0x67F), (0x6E0, 0x6FF), (0x701, 0x77F), (0x780, 0x7FF))
+#: the predefined connection set's default services of node n (CiA 301 7.3.3): EMCY and
+#: the first four TPDOs/RPDOs (SDO and heartbeat are restricted anyway)
+DEFAULT_SERVICES = ((0x080, "EMCY"), (0x180, "TPDO1"), (0x200, "RPDO1"), (0x280, "TPDO2"),
+                    (0x300, "RPDO2"), (0x380, "TPDO3"), (0x400, "RPDO3"), (0x480, "TPDO4"),
+                    (0x500, "RPDO4"))
+
+
+def cob_id_conflict(cob_id: int, own_node: int, nodes: dict[int, str]) -> str | None:
+    """Why ``cob_id`` cannot be a PDO of node ``own_node`` on a bus with ``nodes``
+    (node-ID -> label, the master included), or None: the SYNC COB-ID, another node's
+    predefined EMCY/PDO COB-ID, a restricted CAN-ID."""
+    if cob_id == 0x080:
+        return "is the SYNC COB-ID (1005h)"
+    for base, service in DEFAULT_SERVICES:
+        n = cob_id - base
+        if 1 <= n <= 127 and n != own_node and n in nodes:
+            return f"is the default {service} COB-ID of {nodes[n]} (CiA 301 predefined set)"
+    for lo, hi in RESTRICTED_CAN_IDS:
+        if lo <= cob_id <= hi:
+            return (f"is a restricted CAN-ID (CiA 301: {lo:03X}h..{hi:03X}h are reserved for "
+                    "NMT, SYNC, EMCY, SDO and heartbeat)")
+    return None
+
+
 def check_cob_ids(cfg: BusConfig) -> None:
-    """A PDO enabled in bus.yml but left disabled by dcfgen, or two PDOs with one COB-ID:
-    :class:`~controller.errors.ConfigError` naming the file, line and key."""
+    """A PDO enabled in bus.yml but left disabled by dcfgen, two PDOs with one COB-ID, a
+    COB-ID that :func:`cob_id_conflict` refuses: :class:`~controller.errors.ConfigError`
+    naming the file, line and key."""
     for name, kind, number, line in pdo_enable_conflicts(cfg):
         raise ConfigError(f"{kind.upper()} {number} is disabled in "
                           f"{cfg.slaves[name].dcf.name} (COB-ID bit 31 set): dcfgen keeps it "
                           "disabled unless a cob_id (a number or auto) is given",
                           file=cfg.file, line=line, key=f"{name}.{kind}.{number}")
     owner: dict[int, str] = {}
+    nodes = {s.node_id: f"node {s.node_id} ({n})" for n, s in cfg.slaves.items()}
+    nodes[cfg.master.node_id] = f"the master (node {cfg.master.node_id})"
     for name, (node_pdos) in effective_pdos(cfg).items():
         slave = cfg.slaves[name]
         for p in node_pdos.all():
             if not p.enabled:
                 continue
             what = f"{name} {p.kind.upper()} {p.number}"
+            setting = (slave.rpdo if p.kind == "rpdo" else slave.tpdo).get(p.number)
+            line = (setting.cob_id_line or setting.line) if setting is not None \
+                else slave.line
             if p.cob_id in owner:
-                setting = (slave.rpdo if p.kind == "rpdo" else slave.tpdo).get(p.number)
-                line = (setting.cob_id_line or setting.line) if setting is not None \
-                    else slave.line
                 raise ConfigError(f"COB-ID 0x{p.cob_id:03X} of {what} is also used by "
                                   f"{owner[p.cob_id]}", file=cfg.file, line=line,
+                                  key=f"{name}.{p.kind}.{p.number}.cob_id")
+            why = cob_id_conflict(p.cob_id, slave.node_id, nodes)
+            if why is not None:
+                origin = "" if setting is not None and setting.cob_id is not None else \
+                    f" (the EDS default of {slave.dcf.name})"
+                raise ConfigError(f"COB-ID 0x{p.cob_id:03X} of {what}{origin} {why}",
+                                  file=cfg.file, line=line,
                                   key=f"{name}.{p.kind}.{p.number}.cob_id")
             owner[p.cob_id] = what

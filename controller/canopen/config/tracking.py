@@ -70,13 +70,18 @@ scales).  Keys (``*`` = required)::
         sdo_retries: 1               # an unanswered SDO request is sent again (a node that
                                      #   was still resetting when its boot-up came in)
         enable_s: 2.0                # 402 enable: switch on disabled -> operation enabled
+        stop_s: 1.0                  # controlled stop: per stage (quick stop, then each
+                                     #   escalation step) until the statusword confirms
+      reactions:                     # to other actors (controller.canopen.reactions):
+        foreign_nmt: quick_stop      #   quick_stop | report, per disturbance
+        bad_frame: report
 """
 
 from __future__ import annotations
 
 import dataclasses
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 from ...errors import ConfigError, ParameterError
@@ -84,6 +89,7 @@ from ...kinematics import KINEMATICS, AxisScale
 from ...tracking import PLANNERS, Limits, Mode, Rates, SoftMcOptions, TrackerParams
 from ...yamlmarks import Section
 from ..protocol import od as odm
+from .reactions import Reactions, parse_reactions
 
 if TYPE_CHECKING:
     from .bus import BusConfig
@@ -158,6 +164,9 @@ class Timeouts:
     sdo_s: float = 0.5
     enable_s: float = 2.0
     sdo_retries: int = 1
+    #: time a drive gets per stage of the controlled stop to confirm it by its statusword
+    #: (quick stop, then each escalation step: :mod:`controller.canopen.stopping`) [s]
+    stop_s: float = 1.0
 
 
 @dataclass(frozen=True)
@@ -172,6 +181,8 @@ class TrackingConfig:
     drive_delay_cycles: int = 1
     #: the item types the robot tracks (None: every type)
     track_types: frozenset[int] | None = None
+    #: the reaction to each disturbance by another actor (:mod:`.reactions`)
+    reactions: Reactions = field(default_factory=Reactions)
 
     @property
     def drive_nodes(self) -> tuple[str, ...]:
@@ -218,11 +229,13 @@ def parse_tracking(s: Section, cfg: BusConfig) -> TrackingConfig:
     timeouts = Timeouts(boot_up_s=t.float("boot_up_s", 2.0, above=0.0),
                         sdo_s=t.float("sdo_s", 0.5, above=0.0),
                         enable_s=t.float("enable_s", 2.0, above=0.0),
-                        sdo_retries=t.int("sdo_retries", 1, min=0, max=10))
+                        sdo_retries=t.int("sdo_retries", 1, min=0, max=10),
+                        stop_s=t.float("stop_s", 1.0, above=0.0, max=60.0))
     t.finish()
+    reactions = parse_reactions(s.section("reactions", {}))
     s.finish()
     return TrackingConfig(conveyor, kind, axes, tracker, (start, end), compute_at, timeouts,
-                          delay, track_types)
+                          delay, track_types, reactions)
 
 
 def _slave_ref(s: Section, key: str, cfg: BusConfig, profile: int, what: str) -> str:

@@ -54,6 +54,8 @@ class Port:
         self.bus = bus
         self.clock = clock
         self.subscribers: dict[int, list[Callback]] = {}
+        #: receivers of error frames (python-can ``is_error_frame``: SocketCAN's CAN_ERR_*)
+        self.error_subscribers: list[Callable[[can.Message], None]] = []
         self.sent = 0
         self.received = 0
 
@@ -77,8 +79,16 @@ class Port:
             raise CanError(f"cannot send 0x{can_id:03X}: {exc}") from exc
         self.sent += 1
 
+    def subscribe_errors(self, callback: Callable[[can.Message], None]) -> None:
+        if callback not in self.error_subscribers:
+            self.error_subscribers.append(callback)
+
     def handle(self, msg: can.Message) -> None:
-        if msg.is_error_frame or msg.is_remote_frame or msg.is_extended_id:
+        if msg.is_error_frame:
+            for ecb in tuple(self.error_subscribers):
+                ecb(msg)
+            return
+        if msg.is_remote_frame or msg.is_extended_id:
             return
         self.received += 1
         callbacks = self.subscribers.get(msg.arbitration_id)
@@ -116,8 +126,46 @@ class Transport(Protocol):
 
     def unsubscribe(self, can_id: int, callback: Callback | None = None) -> None: ...
 
+    def subscribe_errors(self, callback: Callable[[can.Message], None]) -> None: ...
+
     def run_until(self, deadline_ns: int, done: Callable[[], bool] | None = None,
                   precise: bool = False) -> bool: ...
+
+
+class GuardedTransport:
+    """A transport whose receive callbacks run guarded (:meth:`FrameHygiene.guard`): an
+    exception inside one is queued for the cycle, never raised into the receive loop.
+    ``send`` and ``run_until`` are the inner transport's own (bound: no extra call)."""
+
+    def __init__(self, inner: Transport, hygiene) -> None:
+        self.inner = inner
+        self.hygiene = hygiene
+        self.clock = inner.clock
+        self.send = inner.send
+        self.run_until = inner.run_until
+        self._guarded: dict[tuple[int, Callback], Callback] = {}
+
+    def subscribe(self, can_id: int, callback: Callback) -> None:
+        g = self._guarded.get((can_id, callback))
+        if g is None:
+            g = self._guarded[(can_id, callback)] = self.hygiene.guard(callback)
+        self.inner.subscribe(can_id, g)
+
+    def unsubscribe(self, can_id: int, callback: Callback | None = None) -> None:
+        if callback is None:
+            for key in [key for key in self._guarded if key[0] == can_id]:
+                del self._guarded[key]
+            self.inner.unsubscribe(can_id)
+            return
+        g = self._guarded.pop((can_id, callback), None)
+        if g is not None:
+            self.inner.unsubscribe(can_id, g)
+
+    def subscribe_errors(self, callback: Callable[[can.Message], None]) -> None:
+        def guarded(msg: can.Message) -> None:
+            self.hygiene.guard(lambda _c, _d, _t: callback(msg))(msg.arbitration_id,
+                                                               bytes(msg.data), 0)
+        self.inner.subscribe_errors(guarded)
 
 
 class SteppedWorld:
@@ -244,6 +292,9 @@ class SteppedTransport:
     def unsubscribe(self, can_id: int, callback: Callback | None = None) -> None:
         self.port.unsubscribe(can_id, callback)
 
+    def subscribe_errors(self, callback: Callable[[can.Message], None]) -> None:
+        self.port.subscribe_errors(callback)
+
     def run_until(self, deadline_ns: int, done: Callable[[], bool] | None = None,
                   precise: bool = False) -> bool:
         return self.world.run_until(deadline_ns, done)
@@ -269,6 +320,9 @@ class RealtimeTransport:
 
     def unsubscribe(self, can_id: int, callback: Callback | None = None) -> None:
         self.port.unsubscribe(can_id, callback)
+
+    def subscribe_errors(self, callback: Callable[[can.Message], None]) -> None:
+        self.port.subscribe_errors(callback)
 
     def run_until(self, deadline_ns: int, done: Callable[[], bool] | None = None,
                   precise: bool = False) -> bool:

@@ -2,7 +2,8 @@
 
 The TPDO (6041h statusword + 6064h position actual) is unpacked in the receive callback and
 kept as one tuple ``(statusword, actual_counts, t_ns, cycle)``: a snapshot taken inside the
-callback, so two values of different frames are never mixed (canopen-notes.md).
+callback, so two values of different frames are never mixed.  A TPDO shorter than its
+mapping is dropped and counted (:mod:`.frames`), never unpacked.
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ from ..config.concise import effective_pdos
 from ..io.transport import Transport
 from ..protocol import cia402
 from ..protocol.cia402 import State
+from ..protocol.frames import FrameHygiene
 from ..protocol.pdo import PdoCodec
 
 if TYPE_CHECKING:
@@ -46,7 +48,7 @@ def _configured(cfg: BusConfig, node: str, index: int, sub: int) -> float:
 
 class AxisIO:
     def __init__(self, cfg: BusConfig, axis_name: str, node: str, scale: AxisScale,
-                 transport: Transport) -> None:
+                 transport: Transport, hygiene: FrameHygiene | None = None) -> None:
         self.axis = axis_name
         self.node = node
         self.scale = scale
@@ -73,10 +75,16 @@ class AxisIO:
         self.target = 0
         self.hold: int | None = None  # counts held while the other drives enable
         self.fault_resets = 0
+        self.hygiene = hygiene if hygiene is not None else FrameHygiene()
+        self._tp_size = self.tpdo.struct.size
+        self._tp_what = f"TPDO{tp.number} of {self.label}"
         transport.subscribe(tp.cob_id, self._on_tpdo)
         self.rpdo_cob = rp.cob_id
 
     def _on_tpdo(self, can_id: int, data: bytes, t_ns: int) -> None:
+        if len(data) != self._tp_size and not self.hygiene.check_length(
+                can_id, data, self._tp_size, self._tp_what, t_ns):
+            return
         v = self.tpdo.unpack(data)
         self.input = DriveInput(v[self._sw_pos], v[self._act_pos], t_ns, self.cycle)
 

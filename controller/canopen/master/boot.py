@@ -16,7 +16,9 @@ Steps (the 402 enable follows in the cycle, with SYNC and the RPDOs running):
    so that the first target the drive sees is where it stands.
 4. NMT "start remote node" (01h) to each slave (``master.start_nodes``).
 
-Every error names the node, the object (index:sub) and, for an SDO abort, the abort code.
+Every error names the node, the object (index:sub) and, for an SDO abort, the abort code;
+and the EMCYs the node sent during the boot (a CANopenNode device that refuses NMT start
+says why in its EMCY just before, e.g. 5000h with no storage files).
 """
 
 from __future__ import annotations
@@ -39,6 +41,45 @@ if TYPE_CHECKING:
 
 class BootError(CanError):
     """The boot stopped; the message names the node, the step and the object."""
+
+    def __init__(self, message: str, node_id: int | None = None) -> None:
+        super().__init__(message)
+        self.node_id = node_id
+
+
+class BootEmcys:
+    """The EMCYs of the booting slaves (80h + node-ID), collected during the boot: each is
+    an event, and a boot error of a node names the ones that node sent."""
+
+    def __init__(self, cfg: BusConfig, transport: Transport, slaves: list) -> None:
+        self.transport = transport
+        self.cfg = cfg
+        self.seen: dict[int, list[str]] = {}
+        self.labels = {s.node_id: cfg.label(s.name) for s in slaves}
+        self.profiles = {s.node_id: odm.profile(cfg.ods[s.name]) for s in slaves}
+        for node in self.labels:
+            transport.subscribe(0x80 + node, self._on_emcy)
+
+    def _on_emcy(self, can_id: int, data: bytes, t_ns: int) -> None:
+        from .supervision import Emcy
+        node = can_id - 0x80
+        if len(data) != 8:  # (CiA 301: 8 bytes; the controller's EMCY consumer counts it)
+            return
+        e = Emcy(self.labels[node], node, int.from_bytes(data[0:2], "little"), data[2],
+                 bytes(data[3:8]), t_ns, self.profiles[node])
+        self.seen.setdefault(node, []).append(str(e))
+
+    def close(self, events: EventLog, t_s: float) -> None:
+        for node in self.labels:
+            self.transport.unsubscribe(0x80 + node, self._on_emcy)
+        for node, texts in self.seen.items():
+            for text in texts:
+                events.add(-1, t_s, self.labels[node], "emcy", f"{text} during the boot",
+                           "reported")
+
+    def suffix(self, node_id: int | None) -> str:
+        texts = self.seen.get(node_id, []) if node_id is not None else []
+        return f"; during the boot the node sent {'; '.join(texts)}" if texts else ""
 
 
 @dataclass
@@ -68,15 +109,27 @@ def interpolation_period(period_us: int) -> tuple[int, int]:
                      "(value 1...255 x 10^-3...-6 s)")
 
 
+def sync_consumer(od) -> bool:
+    """The node consumes SYNC: 1005h exists with bit 30 (generate) clear."""
+    var = odm.variable(od, 0x1005)
+    value = odm.default_value(var) if var is not None else None
+    return value is not None and not int(value) & 0x40000000
+
+
 def cantrack_sdos(cfg: BusConfig, name: str) -> list[SdoValue]:
     """cantrack's own SDO writes to slave ``name`` (after the bus.yml's)."""
+    out = []
+    od = cfg.ods[name]
+    if sync_consumer(od) and odm.variable(od, 0x1019) is not None and \
+            not any(w.index == 0x1019 for w in cfg.slaves[name].sdo):
+        out.append(SdoValue(0x1019, 0, cfg.master.sync_overflow, 1, "cantrack"))
     t = cfg.tracking
     if t is None or name not in t.drive_nodes:
-        return []
+        return out
     axis = next(a for a in t.axes if a.node == name)
     value, index = interpolation_period(cfg.master.sync_period_us)
     lo, hi = axis.scale.limit_counts()
-    return [
+    return out + [
         SdoValue(0x60C2, 1, value, 1, "cantrack"),
         SdoValue(0x60C2, 2, index, 1, "cantrack"),
         SdoValue(0x6060, 0, cia402.MODE_CSP, 1, "cantrack"),
@@ -95,14 +148,34 @@ def required_slaves(cfg: BusConfig) -> set[str]:
 
 def boot(cfg: BusConfig, transport: Transport, events: EventLog | None = None,
          timeouts: Timeouts | None = None) -> BootResult:
-    """Run steps 1-4; returns what each node reported.  Raises BootError."""
+    """Run steps 1-4; returns what each node reported.  Raises BootError (naming the EMCYs
+    the failing node sent during the boot)."""
     events = events if events is not None else EventLog()
     if timeouts is None:
         timeouts = cfg.tracking.timeouts if cfg.tracking is not None else Timeouts()
+    slaves = [s for s in cfg.slaves.values() if s.boot]
+    emcys = BootEmcys(cfg, transport, slaves)
+    current: list[int | None] = [None]  # the node being configured
+    try:
+        return _boot(cfg, transport, events, timeouts, slaves, current)
+    except BootError as exc:
+        node = exc.node_id if exc.node_id is not None else current[0]
+        if not emcys.suffix(node):
+            raise
+        raise BootError(f"{exc}{emcys.suffix(node)}", node) from exc.__cause__
+    except CanError as exc:  # an SDO time-out or protocol error of the node being booted
+        if not emcys.suffix(current[0]):
+            raise
+        raise BootError(f"{exc}{emcys.suffix(current[0])}", current[0]) from exc
+    finally:
+        emcys.close(events, transport.clock.now_ns() * 1e-9)
+
+
+def _boot(cfg: BusConfig, transport: Transport, events: EventLog, timeouts: Timeouts,
+          slaves: list, current: list[int | None]) -> BootResult:
     clock = transport.clock
     t_start = clock.now_ns()
     result = BootResult()
-    slaves = [s for s in cfg.slaves.values() if s.boot]
     for s in slaves:
         result.nodes[s.name] = NodeBoot(s.name, s.node_id)
     by_id = {s.node_id: result.nodes[s.name] for s in slaves}
@@ -131,7 +204,8 @@ def boot(cfg: BusConfig, transport: Transport, events: EventLog | None = None,
             if s.name in required:
                 raise BootError(f"{label}: no boot-up message within {timeouts.boot_up_s:g} s "
                                 f"after NMT reset node (is it powered, on the bus at "
-                                f"{cfg.master.baudrate_kbit} kbit/s, node-ID {s.node_id}?)")
+                                f"{cfg.master.baudrate_kbit} kbit/s, node-ID {s.node_id}?)",
+                                s.node_id)
             events.add(-1, clock.now_ns() * 1e-9, label, "missing",
                        f"no boot-up within {timeouts.boot_up_s:g} s", "left out")
             result.missing.append(s.name)
@@ -139,6 +213,7 @@ def boot(cfg: BusConfig, transport: Transport, events: EventLog | None = None,
 
     concise = concise_configuration(cfg)
     for s in present:
+        current[0] = s.node_id
         label = cfg.label(s.name)
         sdo = SdoClient(transport, s.node_id, label, timeouts.sdo_s, timeouts.sdo_retries)
         od = cfg.ods[s.name]
@@ -165,6 +240,7 @@ def boot(cfg: BusConfig, transport: Transport, events: EventLog | None = None,
                    f"identity ok, {nb.sdo_writes} SDO writes", level=20)
 
     # 4. NMT start, confirmed by the next heartbeat of each node (state 05h)
+    current[0] = None
     if cfg.master.start_nodes:
         _start_nodes(cfg, transport, present)
     result.duration_ns = clock.now_ns() - t_start
@@ -207,7 +283,7 @@ def _start_nodes(cfg: BusConfig, transport: Transport, present: list) -> None:
             shown = "no heartbeat" if node_id not in state else \
                 f"its heartbeat shows state {state[node_id]:02X}h"
             raise BootError(f"{cfg.label(s.name)}: NMT start not confirmed: {shown} "
-                            f"(05h = operational expected)")
+                            f"(05h = operational expected)", node_id)
 
 
 def _check_identity(cfg: BusConfig, name: str, sdo: SdoClient, od) -> tuple[int, ...]:

@@ -45,15 +45,26 @@ from ...kinematics import CountsConverter
 from ...kinematics import create as create_kinematics
 from ...tracking import MasterEstimate, MotionState, Tracker, TrackState
 from ..config.busload import BusLoad, bus_load, check_bus_load
-from ..io.transport import Transport
+from ..config.reactions import Disturbance, Reaction
+from ..io.transport import GuardedTransport, Transport
 from ..protocol import cia402
 from ..protocol.cia402 import State
+from ..protocol.frames import FrameHygiene
 from .app import Application, ConveyorFollow
 from .axisio import AxisIO
 from .boot import BootResult, boot
 from .events import EventLog
 from .masterio import MasterInput
-from .supervision import EmcyMonitor, HeartbeatMonitor
+from .stopping import (
+    SDO_POLL_CYCLES,
+    DriveStop,
+    StopStage,
+    is_stopped,
+    sdo_controlword,
+    sdo_statusword_request,
+    statusword_from_sdo,
+)
+from .supervision import BusActors, EmcyMonitor, HeartbeatMonitor
 from .sync import SyncProducer
 
 if TYPE_CHECKING:
@@ -62,6 +73,14 @@ if TYPE_CHECKING:
 
 class EnableError(CanError):
     """A drive did not reach OPERATION ENABLED."""
+
+
+class CycleError(CanError):
+    """An unexpected exception inside the cycle (after the controlled stop)."""
+
+
+#: exit codes of a run (``cantrack run``; :meth:`Controller.exit_code`)
+EXIT_OK, EXIT_ERROR, EXIT_REACTION, EXIT_UNCONFIRMED = 0, 2, 3, 4
 
 
 class Phase(Enum):
@@ -116,8 +135,9 @@ class Timing:
 class Controller:
     """The CANopen tracking controller for one bus (see the module docstring)."""
 
-    #: cycles the drives get to stop (quick stop) before the run gives up waiting
-    STOP_CYCLES_MAX = 5000
+    #: unexpected exceptions in a row after which the cycle itself is abandoned: the last
+    #: resort (:meth:`_emergency_stop`) sends quick stop and NMT stop without the cycle code
+    MAX_INTERNAL_ERRORS = 3
 
     def __init__(self, cfg: BusConfig, transport: Transport,
                  app: Application | None = None, *, events: EventLog | None = None,
@@ -128,6 +148,10 @@ class Controller:
             raise CanError(f"{cfg.file}: no .tracking section: nothing to control")
         self.cfg = cfg
         self.tc = cfg.tracking
+        #: frames checked before decoding, bad ones counted per COB-ID (:mod:`.frames`);
+        #: every receive callback runs guarded (an exception is queued, never raised)
+        self.hygiene = FrameHygiene()
+        transport = GuardedTransport(transport, self.hygiene)
         self.transport = transport
         self.clock = transport.clock
         self.app: Application = app if app is not None else ConveyorFollow()
@@ -141,12 +165,25 @@ class Controller:
         self.compute_ns = int(self.tc.compute_at * self.period_ns)
         self.kinematics = create_kinematics(self.tc.kinematics, [a.name for a in self.tc.axes])
         self.counts = CountsConverter([a.scale for a in self.tc.axes])
-        self.axes = [AxisIO(cfg, a.name, a.node, a.scale, transport) for a in self.tc.axes]
-        self.master = MasterInput(cfg, transport)
+        self.axes = [AxisIO(cfg, a.name, a.node, a.scale, transport, self.hygiene)
+                     for a in self.tc.axes]
+        self.master = MasterInput(cfg, transport, self.hygiene)
         self.sync = SyncProducer(transport, 0x80, cfg.master.sync_overflow)
-        self.heartbeats = HeartbeatMonitor(transport)
-        self.emcy = EmcyMonitor(transport)
+        self.heartbeats = HeartbeatMonitor(transport, self.hygiene)
+        self.emcy = EmcyMonitor(transport, self.hygiene, cfg)
         self._watch_nodes()
+        #: NMT commands, SYNCs, unknown nodes and error frames of other actors
+        self.actors = BusActors(transport, self.hygiene, cfg, sync_cob=0x80)
+        self.reactions = self.tc.reactions
+        self.stage_cycles = max(1, math.ceil(self.tc.timeouts.stop_s / cfg.period_s))
+        self.stops = [DriveStop(a.label, a.node_id) for a in self.axes]
+        self._sdo_statusword: dict[int, int] = {}  # node-ID -> 6041h read by SDO (stopping)
+        for a in self.axes:
+            transport.subscribe(0x580 + a.node_id, self._on_sdo_answer)
+        self._internal_errors = 0
+        self._bad_reported: set[int] = set()
+        #: the drives' and the encoder's labels (their heartbeat loss always stops)
+        self._motion_labels = {a.label for a in self.axes} | {self.master.label}
         self.tracker: Tracker | None = None
         self.phase = Phase.IDLE
         self.k = 0
@@ -180,7 +217,8 @@ class Controller:
             if hb and cfg.master.heartbeat_consumer:
                 timeout = int(hb * slave.hb_multiplier(cfg.options) * 1e6)
                 self.heartbeats.watch(slave.node_id, label, timeout)
-            self.emcy.watch(0x80 + slave.node_id, slave.node_id, label)
+            self.emcy.watch(0x80 + slave.node_id, slave.node_id, label,
+                            odm.profile(cfg.ods[name]))
 
     def boot(self) -> BootResult:
         """NMT reset, identity, SDO configuration, NMT start (:mod:`.boot`)."""
@@ -387,22 +425,129 @@ class Controller:
         return None
 
     def _stop_step(self, k: int) -> None:
-        still = True
-        for a in self.axes:
-            inp = a.input
-            target = inp.actual if inp is not None else a.target
-            a.send(cia402.CW_QUICK_STOP_CMD, target)
-            st = inp.state if inp is not None else None
-            if st in (State.QUICK_STOP_ACTIVE, State.FAULT_REACTION_ACTIVE,
-                      State.OPERATION_ENABLED):
-                still = False
+        """The controlled stop (:mod:`.stopping`): quick stop by RPDO every cycle; a drive
+        whose statusword does not confirm the stop within ``stage_cycles`` is escalated
+        stage by stage; the phase is STOPPED when every drive is confirmed or, after the
+        last stage, reported unconfirmed."""
+        t_s = (self.clock.now_ns() - self.t0) * 1e-9
+        done = True
+        for a, s in zip(self.axes, self.stops):
+            inp = a.input if a.fresh(k) else None
+            sw = inp.statusword if inp is not None else self._sdo_statusword.pop(a.node_id,
+                                                                                   None)
+            if sw is not None:
+                s.seen(k, sw)
+            if s.confirmed_cycle is None and s.stage is not StopStage.UNCONFIRMED \
+                    and sw is not None and is_stopped(sw):
+                s.confirmed_cycle = k
+                how = "TPDO" if inp is not None else "SDO"
+                self.events.add(k, t_s, a.label, "stop_confirmed",
+                                f"statusword {sw:04X}h ({s.state_name}, by {how}) after "
+                                f"{k - s.begin_cycle} cycles, stage {s.stage.text}", level=20)
+            target = a.input.actual if a.input is not None else a.target
+            cw = cia402.CW_DISABLE_VOLTAGE if s.stage.value >= StopStage.DISABLE_VOLTAGE.value \
+                else cia402.CW_QUICK_STOP_CMD
+            a.send(cw, target)
+            if s.finished:
+                continue
+            done = False
+            if s.stage is not StopStage.QUICK_STOP and (k - s.stage_cycle) % SDO_POLL_CYCLES == 0:
+                self.transport.send(0x600 + a.node_id, sdo_statusword_request())
+            if k - s.stage_cycle >= self.stage_cycles:
+                self._escalate(k, t_s, a, s)
         if self.phase is Phase.STOPPING:
             self._stop_cycles += 1
-            if still:
+            if done:
                 self.phase = Phase.STOPPED
-                self.events.add(k, (self.clock.now_ns() - self.t0) * 1e-9, "controller",
-                                "stopped", "all drives stand still (quick stop done)",
-                                level=20)
+                bad = [s.label for s in self.stops if s.confirmed_cycle is None]
+                if bad:
+                    self.events.add(k, t_s, "controller", "stopped",
+                                    f"stop not confirmed by {', '.join(bad)}",
+                                    "run ends (exit code 4)")
+                else:
+                    self.events.add(k, t_s, "controller", "stopped",
+                                    "all drives stopped (confirmed by their statusword)",
+                                    level=20)
+
+    def _on_sdo_answer(self, can_id: int, data: bytes, t_ns: int) -> None:
+        """6041h read by SDO while a drive's stop is escalated (other SDO answers: the
+        boot's and the jobs' own clients, ignored here)."""
+        if self.phase is Phase.STOPPING:
+            sw = statusword_from_sdo(data)
+            if sw is not None:
+                self._sdo_statusword[can_id - 0x580] = sw
+
+    def _escalate(self, k: int, t_s: float, a: AxisIO, s: DriveStop) -> None:
+        """The next stage of ``a``'s stop (see :class:`.stopping.StopStage`)."""
+        s.escalate(k)
+        send = self.transport.send
+        seen = (f"last statusword {s.statusword:04X}h ({s.state_name}) in cycle {s.last_cycle}"
+                if s.statusword is not None else "no TPDO since the stop began")
+        if s.stage is StopStage.NMT_START:
+            send(0x000, bytes((0x01, a.node_id)))
+            send(0x600 + a.node_id, sdo_controlword(cia402.CW_QUICK_STOP_CMD))
+        elif s.stage is StopStage.DISABLE_VOLTAGE:
+            send(0x600 + a.node_id, sdo_controlword(cia402.CW_DISABLE_VOLTAGE))
+        elif s.stage is StopStage.NMT_STOP:
+            send(0x000, bytes((0x02, a.node_id)))
+            self._hb_next = None  # the drives' 1016h consumers time out: 6007h applies
+        if s.stage is StopStage.UNCONFIRMED:
+            self.events.add(k, t_s, a.label, "stop_unconfirmed",
+                            f"stop not confirmed after every escalation stage ({seen})",
+                            "drive state unknown: check it on site")
+        else:
+            self.events.add(k, t_s, a.label, "stop_escalated",
+                            f"not stopped after {self.stage_cycles} cycles ({seen})",
+                            s.stage.text)
+
+    def _internal_error(self, k: int, error: str, where: str) -> bool:
+        """An unexpected exception in cycle ``k``: the controlled stop, the run fails.
+        True when the cycle code itself keeps failing (the emergency stop was made)."""
+        self._internal_errors += 1
+        t_s = (self.clock.now_ns() - self.t0) * 1e-9
+        if self.failure is None or not isinstance(self.failure, CycleError):
+            self.failure = CycleError(f"internal error in cycle {k}: {error} ({where}); the "
+                                      "drives were stopped")
+        if self._internal_errors >= self.MAX_INTERNAL_ERRORS:
+            self._emergency_stop(k, t_s, error)
+            return True
+        self.quick_stop(k, t_s, "controller", "internal_error", f"{error} ({where})")
+        return False
+
+    def _emergency_stop(self, k: int, t_s: float, error: str) -> None:
+        """The last resort, without the cycle code: quick stop by RPDO and NMT stop to every
+        drive, the controller's heartbeat off (the drives' 1016h consumers react)."""
+        self._hb_next = None
+        for a, s in zip(self.axes, self.stops):
+            try:
+                a.send(cia402.CW_QUICK_STOP_CMD, a.target)
+            finally:
+                self.transport.send(0x000, bytes((0x02, a.node_id)))
+            if s.confirmed_cycle is None:
+                s.stage = StopStage.UNCONFIRMED
+        self.phase = Phase.STOPPED
+        self.events.add(k, t_s, "controller", "internal_error",
+                        f"{self._internal_errors} cycles failed in a row ({error})",
+                        "emergency stop: quick stop and NMT stop to every drive, heartbeat off")
+
+    def final_states(self) -> None:
+        """Each drive's last statusword into its :class:`DriveStop` (the report)."""
+        for a, s in zip(self.axes, self.stops):
+            if a.input is not None:
+                s.seen(a.input.cycle, a.input.statusword)
+
+    def exit_code(self) -> int:
+        """0 normal end; 2 an error (enable failed, internal error); 3 a reaction happened,
+        every drive's stop confirmed; 4 a reaction happened and a drive's stop is
+        unconfirmed.  Never 0 after a fault."""
+        if self.failure is not None:
+            return EXIT_ERROR
+        if not any(e.reaction and e.reaction.startswith("quick stop") for e in self.events):
+            return EXIT_OK
+        if self.phase is not Phase.STOPPED or any(s.confirmed_cycle is None
+                                                  for s in self.stops):
+            return EXIT_UNCONFIRMED
+        return EXIT_REACTION
 
     # -- supervision -------------------------------------------------------------------------
     def quick_stop(self, k: int, t_s: float, source: str, kind: str, detail: str) -> None:
@@ -412,6 +557,17 @@ class Controller:
             return
         self.events.add(k, t_s, source, kind, detail, "quick stop of all drives")
         self.phase = Phase.STOPPING
+        for s in self.stops:
+            s.begin(k)
+
+    def disturbance(self, k: int, t_s: float, source: str, d: Disturbance,
+                    detail: str) -> None:
+        """React to another actor's disturbance as configured (``.tracking.reactions``)."""
+        r = self.reactions.of(d)
+        if r is Reaction.QUICK_STOP:
+            self.quick_stop(k, t_s, source, d.value, detail)
+        else:
+            self.events.add(k, t_s, source, d.value, detail, r.text)
 
     def _fail(self, k: int, t_s: float, source: str, kind: str, detail: str) -> None:
         self.quick_stop(k, t_s, source, kind, detail)
@@ -431,10 +587,26 @@ class Controller:
 
     def _supervise(self, k: int, t_s: float) -> None:
         now = self.clock.now_ns()
+        bad, errors = self.hygiene.pop_all()
+        for err in errors:
+            self._internal_error(k, f"{err} (in a receive callback)",
+                                 err.trace.strip().splitlines()[-3].strip()
+                                 if err.trace.count("\n") > 2 else "receive callback")
+        for b in bad:
+            if b.cob_id not in self._bad_reported:  # the first per COB-ID; all are counted
+                self._bad_reported.add(b.cob_id)
+                self.disturbance(k, t_s, b.what, Disturbance.BAD_FRAME, str(b))
+        for source, d, detail in self.actors.pop_all():
+            self.disturbance(k, t_s, source, d, detail)
         for label, kind, detail in self.heartbeats.check(now):
-            self.quick_stop(k, t_s, label, kind, detail)
+            if kind == "node_reset":
+                self.disturbance(k, t_s, label, Disturbance.NODE_RESET, detail)
+            elif kind == "heartbeat_lost" and label not in self._motion_labels:
+                self.disturbance(k, t_s, label, Disturbance.IO_NODE_LOST, detail)
+            else:
+                self.quick_stop(k, t_s, label, kind, detail)
         for e in self.emcy.pop_all():
-            if e.code == 0:
+            if e.is_reset:
                 self.events.add(k, t_s, e.label, "emcy", f"{e}: error reset", level=20)
             elif e.node_id in {a.node_id for a in self.axes}:
                 self.quick_stop(k, t_s, e.label, "emcy", str(e))
@@ -545,12 +717,20 @@ class Controller:
             self.start()  # (again after the gc work: the first deadline is one period ahead)
         try:
             while max_cycles is None or self.k < max_cycles:
-                self.step()
+                k0 = self.k
+                try:
+                    self.step()
+                    self._internal_errors = 0
+                except Exception as exc:  # noqa: BLE001 -- the last line of defence
+                    if self.k == k0:
+                        self.k = k0 + 1  # the cycle counts as done
+                    if self._internal_error(k0, f"{type(exc).__name__}: {exc}",
+                                            _where(exc)):
+                        break
+                    continue
                 if self.phase is Phase.RUNNING and self.app.done(self, self.k - 1):
                     break
                 if self.phase is Phase.STOPPED:
-                    break
-                if self.phase is Phase.STOPPING and self._stop_cycles > self.STOP_CYCLES_MAX:
                     break
                 if stop is not None and stop():
                     break
@@ -560,6 +740,7 @@ class Controller:
                 gc.unfreeze()
         if self.phase is Phase.RUNNING:
             self.disable()
+        self.final_states()
         if self.failure is not None:
             raise self.failure
 
@@ -582,3 +763,14 @@ class Controller:
             if self.keep_trace:
                 self.trace.append(rec)
             self.k = k + 1
+
+
+def _where(exc: BaseException) -> str:
+    """``file:line in function`` of the innermost frame of ``exc``'s traceback."""
+    tb = exc.__traceback__
+    if tb is None:
+        return "no traceback"
+    while tb.tb_next is not None:
+        tb = tb.tb_next
+    code = tb.tb_frame.f_code
+    return f"{code.co_filename.rsplit('/', 1)[-1]}:{tb.tb_lineno} in {code.co_name}"

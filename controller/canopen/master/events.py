@@ -29,6 +29,20 @@ class EventKind(StrEnum):
     MASTER_SILENT = "master_silent"      #: the encoder went silent: de-sync
     MASTER_BACK = "master_back"          #: the encoder sends again
     ITEM_MISSED = "item_missed"          #: the demo: an item left its window unpicked
+    # the controlled stop (master.stopping)
+    STOP_CONFIRMED = "stop_confirmed"    #: a drive's statusword confirms its stop
+    STOP_ESCALATED = "stop_escalated"    #: a drive not stopped in time: the next stage
+    STOP_UNCONFIRMED = "stop_unconfirmed"  #: every stage done, the stop not confirmed
+    INTERNAL_ERROR = "internal_error"    #: an unexpected exception inside the cycle
+    NODE_RESET = "node_reset"            #: a configured node's boot-up mid-run
+    # other actors (config.reactions.Disturbance: the configurable reactions)
+    FOREIGN_NMT = "foreign_nmt"          #: an NMT command the controller did not send
+    FOREIGN_SYNC = "foreign_sync"        #: a SYNC the controller did not send
+    UNKNOWN_NODE = "unknown_node"        #: a heartbeat of a node-ID nobody configured
+    IO_NODE_LOST = "io_node_lost"        #: the heartbeat of a slave that is no drive/encoder
+    BAD_FRAME = "bad_frame"              #: a frame of wrong length/format (not processed)
+    ERROR_PASSIVE = "error_passive"      #: the CAN controller error passive
+    BUS_OFF = "bus_off"                  #: the CAN controller bus-off
 
 
 @dataclass(frozen=True, slots=True)

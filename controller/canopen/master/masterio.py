@@ -22,6 +22,7 @@ from ...kinematics import EncoderScale
 from ...tracking import MasterEstimate, MasterEstimator
 from ..config.concise import effective_pdos
 from ..io.transport import Transport
+from ..protocol.frames import FrameHygiene
 from ..protocol.pdo import PdoCodec
 
 if TYPE_CHECKING:
@@ -29,7 +30,8 @@ if TYPE_CHECKING:
 
 
 class MasterInput:
-    def __init__(self, cfg: BusConfig, transport: Transport) -> None:
+    def __init__(self, cfg: BusConfig, transport: Transport,
+                 hygiene: FrameHygiene | None = None) -> None:
         c = cfg.tracking.conveyor
         self.conf = c
         self.label = cfg.label(c.node)
@@ -48,9 +50,16 @@ class MasterInput:
         self.belt_mm: float | None = None  # newest measured belt travel
         self.raw: int | None = None
         self.last_estimate: MasterEstimate | None = None  # of the last update
+        self.hygiene = hygiene if hygiene is not None else FrameHygiene()
+        self._size = self.codec.struct.size
+        self._what = f"TPDO{pdo.number} of {self.label}"
         transport.subscribe(pdo.cob_id, self._on_tpdo)
 
     def _on_tpdo(self, can_id: int, data: bytes, t_ns: int) -> None:
+        """The sample (a frame shorter than the mapping: dropped, counted, never unpacked)."""
+        if len(data) != self._size and not self.hygiene.check_length(
+                can_id, data, self._size, self._what, t_ns):
+            return
         self.snapshot = (self.codec.unpack(data)[self._pos], t_ns, self.cycle)
 
     def fresh(self, cycle: int) -> bool:

@@ -343,6 +343,8 @@ class SimDrive(SimNode):
                 sw |= cia402.SW_TARGET_REACHED | HM_ATTAINED
             elif self.homing_status == "error":
                 sw |= cia402.SW_TARGET_REACHED | HM_ERROR
+        if self.state is State.QUICK_STOP_ACTIVE and self.v == 0.0:
+            sw |= cia402.SW_TARGET_REACHED  # CiA 402: in quick stop, bit 10 = halted
         if self._internal_limit:
             sw |= cia402.SW_INTERNAL_LIMIT
         return sw
@@ -388,6 +390,12 @@ class SimDrive(SimNode):
             raise SdoAbortError(ABORT_VALUE_RANGE)
         elif index == 0x60B8:
             self._arm_probe(value)
+        elif index == 0x6040:
+            # a controlword by SDO acts at once (as an RPDO of type 254/255 would): also in
+            # pre-operational, where no RPDO is processed
+            self.store(0x6040, 0, value)
+            self._apply_controlword()
+            self._publish()
 
     def _sync_mode(self) -> None:
         mode = int(self.load(0x6060, 0))

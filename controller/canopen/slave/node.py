@@ -48,6 +48,8 @@ NMT_INITIALISING = 0
 NMT_STOPPED = 4
 NMT_OPERATIONAL = 5
 NMT_PRE_OPERATIONAL = 127
+#: CiA 301 EMCY: unexpected SYNC data length (the counter against 1019h)
+EMCY_SYNC_LENGTH = 0x8240
 
 
 
@@ -113,6 +115,10 @@ class SimNode:
         self._sdo_rejects: dict[tuple[int, int], int] = {}
         self.emcy_sent: list[tuple[int, int]] = []  # (code, ns)
         self.sync_counter: int | None = None
+        #: an EMCY code sent instead of obeying NMT start (a device that refuses to start,
+        #: like a CANopenNode device without its storage files: 5000h)
+        self.refuse_start: int | None = None
+        self._has_1019 = odm.variable(self.od, 0x1019) is not None
         network.subscribe(self.sync_cob, self._on_sync_frame)
 
     # -- object dictionary access -------------------------------------------------------
@@ -215,11 +221,33 @@ class SimNode:
 
     def _on_sdo_request(self, can_id: int, data: bytes, ts: Any) -> None:
         if self._can_talk() and self.nmt_state != NMT_INITIALISING and not self.sdo_muted:
+            if len(data) != 8:
+                # CiA 301: SDO frames have 8 bytes; python canopen's server would raise in
+                # its unpack.  Abort 05040001h (command specifier not valid), naming what
+                # index/sub-index bytes there are.
+                head = bytes(data[1:4]).ljust(3, b"\0")
+                self.network.send_message(0x580 + self.node_id,
+                                          b"\x80" + head + (0x05040001).to_bytes(4, "little"))
+                return
             self.node.sdo.on_request(can_id, data, ts)
 
     # -- NMT -------------------------------------------------------------------------------
     def _can_talk(self) -> bool:
         return self.powered and not self.silent
+
+    def _sync_length_ok(self, n: int) -> bool:
+        """CiA 301: with 1019h > 0 a SYNC carries the counter (1 byte), else none; a consumer
+        that gets another length sends EMCY 8240h (unexpected SYNC data length) and, as
+        CANopenNode does, enters pre-operational.  (Objects without 1019h: not checked.)"""
+        if not self._has_1019:
+            return True
+        want = 1 if int(self.load(0x1019, 0)) else 0
+        if n == want:
+            return True
+        if self.nmt_state == NMT_OPERATIONAL:
+            self.send_emcy(EMCY_SYNC_LENGTH)
+            self._set_nmt(NMT_PRE_OPERATIONAL)
+        return False
 
     def _on_nmt(self, can_id: int, data: bytes, ts: Any) -> None:
         if not self.powered or len(data) < 2:
@@ -228,7 +256,9 @@ class SimNode:
         if target not in (0, self.node_id):
             return
         self._maybe_reload()
-        if cmd == 0x01 and self.nmt_state != NMT_INITIALISING:
+        if cmd == 0x01 and self.nmt_state != NMT_INITIALISING and self.refuse_start is not None:
+            self.send_emcy(self.refuse_start)  # (as CANopenNode without its storage files)
+        elif cmd == 0x01 and self.nmt_state != NMT_INITIALISING:
             self._set_nmt(NMT_OPERATIONAL)
         elif cmd == 0x02 and self.nmt_state != NMT_INITIALISING:
             self._set_nmt(NMT_STOPPED)
@@ -430,6 +460,8 @@ class SimNode:
         if self._pdo_dirty:
             self._rebuild_pdos()
         self.sync_counter = data[0] if data else None
+        if not self._sync_length_ok(len(data)):
+            return
         now = self.clock.now_ns()
         operational = self.nmt_state == NMT_OPERATIONAL
         if operational:

@@ -9,6 +9,7 @@ gets a :class:`RealtimeTransport`; all on one virtual channel in this process.
 
 from __future__ import annotations
 
+import copy
 import itertools
 import os
 from collections.abc import Iterable
@@ -33,12 +34,36 @@ if TYPE_CHECKING:
 _channels = itertools.count()
 
 
+#: the channel name written into the bus log of a simulated bus.  Not the virtual
+#: channel's own name (``cantrack-sim-<pid>-<n>``: more than the 15 characters of a Linux
+#: interface name, which can-utils' ``canplayer`` refuses), and a *virtual* interface's
+#: name, so that a ``canplayer -I bus.log`` without an interface assignment replays a
+#: simulation onto vcan0, never onto a real bus by accident (``can0=vcan0`` to mean it).
+LOG_CHANNEL = "vcan0"
+
+
+class _Renamed(can.Listener):
+    """Passes each message on with ``channel`` = :data:`LOG_CHANNEL`."""
+
+    def __init__(self, writer: can.Listener) -> None:
+        self.writer = writer
+
+    def on_message_received(self, msg: can.Message) -> None:
+        # a copy: python-can's virtual bus hands the same message object to every receiver
+        renamed = copy.copy(msg)
+        renamed.channel = LOG_CHANNEL
+        self.writer.on_message_received(renamed)
+
+    def stop(self) -> None:
+        self.writer.stop()
+
+
 class _LogEndpoint:
     """The bus logger as a stepped-world participant."""
 
     def __init__(self, bus: can.BusABC, writer: can.Listener) -> None:
         self.bus = bus
-        self.writer = writer
+        self.writer = _Renamed(writer)
 
     def handle(self, msg: can.Message) -> None:
         self.writer.on_message_received(msg)
@@ -92,7 +117,8 @@ class SimWorld:
             if bus_log is not None:
                 self._logger = can.Logger(str(bus_log))
                 self._log_bus = virtual_bus(self.channel)
-                self._notifier = can.Notifier(self._log_bus, [self._logger], timeout=0.05)
+                self._notifier = can.Notifier(self._log_bus, [_Renamed(self._logger)],
+                                              timeout=0.05)
             self.transport = RealtimeTransport(virtual_bus(self.channel), self.clock,
                                                **({} if spin_ns is None else
                                                   {"spin_ns": spin_ns}))
