@@ -9,6 +9,8 @@ from collections.abc import Callable, Sequence
 from typing import Any
 
 from ...errors import CanError
+from ...tracking import Mode
+from ..master.app import NO_STATUS, AppStatus
 from ..master.axisio import AxisIO, DriveInput
 from ..master.cycle import Controller, CycleRecord, Phase
 from ..protocol import cia402
@@ -36,6 +38,15 @@ class _JobApp:
 
     def done(self, ctl: Controller, cycle: int) -> bool:
         return ctl.all_done
+
+    def status(self) -> AppStatus:
+        return NO_STATUS
+
+    def engage(self, ctl: Controller, mode: Mode) -> bool:
+        return True  # (the jobs, not the tracker, move the axes: a PLC command is ignored)
+
+    def trigger(self, t_ns: int) -> bool:
+        return False
 
 
 class MotionController(Controller):

@@ -57,6 +57,7 @@ from ...conveyor.location import q_to_axis_angle
 from ...conveyor.sources import SourceState
 from ...tracking import Imfs, Limits, MasterEstimate, Mode, MotionState, Tracker, TrackState
 from ..config.demo import DemoConfig
+from ..master.app import AppStatus
 
 if TYPE_CHECKING:
     from ..master.cycle import Controller
@@ -159,6 +160,8 @@ class PickPlace:
     frame: MovingFrame | None = None
     robot: RobotGroup | None = None
     imfs_log: list[int] = field(default_factory=list)
+    #: items missed so far (counted as they end, for :meth:`status`)
+    missed: int = 0
     _by_entry: dict = field(default_factory=dict)
     _until: int = 0
     _end_cycle: int | None = None
@@ -219,6 +222,7 @@ class PickPlace:
         item.outcome = outcome
         item.reason = reason
         self.done_items.append(item)
+        self.missed += outcome == "missed"
         if item is self.current:
             self.current = None
 
@@ -309,7 +313,7 @@ class PickPlace:
         self._prev = m
         return m
 
-    def plc_engage(self, ctl: Controller, mode: Mode) -> None:
+    def engage(self, ctl: Controller, mode: Mode) -> bool:
         """The PLC's 2005h: 0 de-syncs the robot from the belt (``STOP``: the item being
         approached or followed is missed); 3/5 are the program's to give (ignored)."""
         if mode == Mode.OFF and self.robot is not None:
@@ -317,6 +321,21 @@ class PickPlace:
                 self._finish_item(self.current, "missed", "disengaged by the PLC")
                 self.step = Step.WAIT
             self.robot.stop()
+        return True
+
+    def trigger(self, t_ns: int) -> bool:
+        """A PLC's item trigger: an item edge of the photo-eye (counted once the cycle takes
+        the item in)."""
+        if self.eye is None:
+            return False
+        self.eye.trigger(t_ns)
+        return True
+
+    def status(self) -> AppStatus:
+        """The robot group's tracking, the photo-eye's count, the items missed."""
+        return AppStatus(self.track_state if self.robot is not None else None,
+                         Imfs(self.imfs) if self.robot is not None else None,
+                         self.eye.detected if self.eye is not None else None, self.missed)
 
     def master_lost(self, ctl: Controller, cycle: int) -> None:
         if self.current is not None and self.step in (Step.APPROACH, Step.FOLLOW):

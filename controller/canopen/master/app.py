@@ -6,14 +6,20 @@ The cycle asks its application, once per cycle while RUNNING and before
 pick-and-place sequence (:mod:`controller.canopen.apps.demo`) is one application;
 :class:`ConveyorFollow` (follow a point of the belt, engage/disengage at given times) is
 the one ``cantrack run`` and the tests use.
+
+Everything the cycle and the controller's own node (:mod:`.plc_node`) read of an application
+is declared here: :meth:`Application.status` returns a typed :class:`AppStatus` after each
+cycle, and a PLC's engage command and item trigger go to :meth:`Application.engage` and
+:meth:`Application.trigger` (no attribute lookups on the application).
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Protocol
 
-from ...tracking import MasterEstimate, Mode, MotionState
+from ...tracking import Imfs, MasterEstimate, Mode, MotionState, TrackState
 
 if TYPE_CHECKING:
     from ..config.tracking import ConveyorConfig
@@ -32,6 +38,25 @@ def belt_frame(conv: ConveyorConfig, est: MasterEstimate,
                        angle, 0.0, 0.0)
 
 
+@dataclass(frozen=True, slots=True)
+class AppStatus:
+    """What an application reports after a cycle (read by the cycle record and the PLC node).
+
+    ``track_state``/``imfs``: the application's own belt tracking (the demo's robot group);
+    None: the controller's tracker is the one (its state is reported).  ``items_detected``:
+    items seen by the application's item sensor so far (None: it has none; the PLC node then
+    counts its own triggers); ``items_missed``: items missed so far."""
+
+    track_state: TrackState | None = None
+    imfs: Imfs | None = None
+    items_detected: int | None = None
+    items_missed: int = 0
+
+
+#: the status of an application without tracking of its own and without items
+NO_STATUS = AppStatus()
+
+
 class Application(Protocol):
     def start(self, ctl: Controller, cycle: int) -> None:
         """Tracking begins (all drives enabled, master ready)."""
@@ -44,6 +69,17 @@ class Application(Protocol):
 
     def done(self, ctl: Controller, cycle: int) -> bool:
         """True when the run is over."""
+
+    def status(self) -> AppStatus:
+        """The application's status after the last cycle."""
+
+    def engage(self, ctl: Controller, mode: Mode) -> bool:
+        """A PLC's engage command (2005h): True if the application took it, False to let the
+        controller's tracker engage (``mode`` 3/5) or disengage (0)."""
+
+    def trigger(self, t_ns: int) -> bool:
+        """A PLC's item trigger at ``t_ns`` [ns, controller clock]: True if the application
+        took it as an item edge, False if it has no item sensor."""
 
 
 class ConveyorFollow:
@@ -79,3 +115,12 @@ class ConveyorFollow:
 
     def done(self, ctl: Controller, cycle: int) -> bool:
         return self.end_cycle is not None and cycle - self.start_cycle >= self.end_cycle
+
+    def status(self) -> AppStatus:
+        return NO_STATUS
+
+    def engage(self, ctl: Controller, mode: Mode) -> bool:
+        return False
+
+    def trigger(self, t_ns: int) -> bool:
+        return False

@@ -679,7 +679,7 @@ class Controller:
         """Tracker state of the cycle record: the application's if it has one (the demo's
         robot group; the controller's tracker passes its setpoint through), else the
         tracker's."""
-        st = getattr(self.app, "track_state", None)
+        st = self.app.status().track_state
         if st is not None and self.phase is Phase.RUNNING:
             return int(st)
         return int(tr.state) if tr is not None else 0
@@ -687,7 +687,7 @@ class Controller:
     def _imfs(self, tr: Tracker | None) -> int:
         """IMFS of the cycle record: the application's (the demo's robot group) if it has
         one, else the tracker's."""
-        imfs = getattr(self.app, "imfs", None)
+        imfs = self.app.status().imfs
         if imfs is not None and self.phase is Phase.RUNNING:
             return int(imfs)
         return int(tr.imfs) if tr is not None else 0

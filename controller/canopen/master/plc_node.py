@@ -26,9 +26,10 @@ commands it over SDO and PDO.
   (they take effect in the tracker's next update): 2005h = 3/5 -> engage with that mode,
   0 -> disengage, on every SDO write and on a change of value in the RPDO (a PLC may send
   its RPDO cyclically) (the
-  application's ``plc_engage(ctl, mode)`` if it has one, else ``ctl.tracker``); 2004h bit 0
-  rising edge -> an item trigger (the application's photo-eye ``eye.trigger(t_ns)`` if there
-  is one; always counted in :attr:`PlcNode.triggers`).
+  application's :meth:`~.app.Application.engage` if it takes it, else ``ctl.tracker``);
+  2004h bit 0 rising edge -> an item trigger (:meth:`~.app.Application.trigger`: the
+  demo's photo-eye; always counted in :attr:`PlcNode.triggers`).  What the node reports of
+  the application comes from its typed :meth:`~.app.Application.status`.
 
 No NMT slave and no heartbeat here: the controller is the NMT master and already produces
 its heartbeat (700h+id) itself.
@@ -67,6 +68,7 @@ from ..protocol.sdo import (
 )
 
 if TYPE_CHECKING:
+    from .app import Application
     from .cycle import Controller, CycleRecord
 
 EDS = data_path("eds", "cantrack-controller.eds")
@@ -99,7 +101,7 @@ class PdoChannel:
 class PlcNode:
     """The controller's own CANopen node (see the module docstring)."""
 
-    def __init__(self, ctl: Controller, app: Any | None = None, eds: str | Path = EDS,
+    def __init__(self, ctl: Controller, app: Application | None = None, eds: str | Path = EDS,
                  node_id: int | None = None) -> None:
         self.ctl = ctl
         self.app = app if app is not None else ctl.app
@@ -129,9 +131,7 @@ class PlcNode:
         self.commands: list[tuple[int, int]] = []
         self.sdo_requests = 0
         self.aborts: list[tuple[int, int, int]] = []  # (index, sub, code)
-        self._missed_seen = 0
         self._rpdo_engage = 0
-        self._missed = 0
         self.tpdos: list[PdoChannel] = []
         self.rpdos: dict[int, PdoChannel] = {}
         self._pdo_dirty = True
@@ -265,7 +265,7 @@ class PlcNode:
             self._trigger_input(value)
         elif index == 0x2010:
             tr = self.ctl.tracker
-            state = getattr(self.app, "track_state", None)  # (the demo's robot group)
+            state = self.app.status().track_state  # (the demo's robot group)
             if state is None and tr is not None:
                 state = tr.state
             if state is not None and state is not TrackState.OFF:
@@ -298,9 +298,7 @@ class PlcNode:
     def _engage(self, value: int) -> None:
         ctl = self.ctl
         self.commands.append((self.clock.now_ns(), value))
-        hook = getattr(self.app, "plc_engage", None)
-        if hook is not None:
-            hook(ctl, Mode(value))
+        if self.app.engage(ctl, Mode(value)):
             return
         tr = ctl.tracker
         if tr is None:
@@ -316,11 +314,7 @@ class PlcNode:
             t = self.clock.now_ns()
             self.triggers += 1
             self.trigger_times.append(t)
-            eye = getattr(self.app, "eye", None)
-            trigger = getattr(eye, "trigger", None)
-            if trigger is not None:
-                trigger(t)  # (counted by the photo-eye once the cycle takes the item in)
-            else:
+            if not self.app.trigger(t):  # (else counted by the application's item sensor)
                 self.put(0x2003, 0, self.item_count() & 0xFFFFFFFF)
 
     def _on_rpdo(self, can_id: int, data: bytes, t_ns: int) -> None:
@@ -429,21 +423,13 @@ class PlcNode:
         self.put(0x2008, 0, float(rec.belt_vel) if rec.belt_vel is not None else 0.0)
 
     def item_count(self) -> int:
-        eye = getattr(self.app, "eye", None)
-        detected = getattr(eye, "detected", None)
+        detected = self.app.status().items_detected
         if detected is not None:
-            return int(detected)  # the photo-eye's items, PLC triggers included
+            return detected  # the application's item sensor, PLC triggers included
         return self.triggers
 
     def items_missed(self) -> int:
-        done = getattr(self.app, "done_items", None)
-        if done is None:
-            return 0
-        for item in done[self._missed_seen:]:
-            if getattr(item, "outcome", "") == "missed":
-                self._missed += 1
-        self._missed_seen = len(done)
-        return self._missed
+        return self.app.status().items_missed
 
     def _on_cycle(self, ctl: Controller, rec: CycleRecord) -> None:
         if self._chained is not None:
