@@ -17,12 +17,13 @@ float.
 
 from __future__ import annotations
 
+import builtins
 import difflib
 import math
 import re
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal, overload
 
 import yaml
 
@@ -214,14 +215,14 @@ def load_marked(text: str, file: str) -> Any:
                           file=file, line=1) from None
     except yaml.MarkedYAMLError as exc:
         mark = exc.problem_mark or exc.context_mark
-        line = mark.line + 1 if mark is not None else None
+        at = mark.line + 1 if mark is not None else None
         where = exc.context_mark or exc.problem_mark
         key = _nearest_key(text, where.line + 1) if where is not None else None
         msg = f"YAML syntax error: {exc.problem or exc}"
         if exc.context:
             ctx_line = f" started on line {exc.context_mark.line + 1}" if exc.context_mark else ""
             msg += f" ({exc.context}{ctx_line})"
-        raise ConfigError(msg, file=file, line=line, key=key) from None
+        raise ConfigError(msg, file=file, line=at, key=key) from None
     except yaml.YAMLError as exc:
         raise ConfigError(f"YAML error: {exc}", file=file) from None
     finally:
@@ -356,7 +357,17 @@ class Section:
                                  + suggest(value, choices))
         return value
 
-    def vector(self, key: Any, n: int, default: Any = _MISSING) -> tuple[float, ...]:
+    # (below the getters named int/float/bool/str/list, the builtin types are builtins.X)
+    @overload
+    def vector(self, key: Any, n: Literal[3],
+               default: Any = _MISSING) -> tuple[builtins.float, builtins.float, builtins.float]:
+        ...
+    @overload
+    def vector(self, key: Any, n: builtins.int,
+               default: Any = _MISSING) -> tuple[builtins.float, ...]: ...
+
+    def vector(self, key: Any, n: builtins.int,
+               default: Any = _MISSING) -> tuple[builtins.float, ...]:
         value = self.raw(key, default)
         if key not in self.data:
             return value
@@ -367,7 +378,16 @@ class Section:
                              + (f" of {len(value)} items" if isinstance(value, list) else ""))
         return tuple(float(x) for x in value)
 
+    @overload
+    def section(self, key: Any) -> Section: ...
+    @overload
+    def section(self, key: Any, default: None) -> Section | None: ...
+    @overload
+    def section(self, key: Any, default: Mapping[Any, Any]) -> Section: ...
+
     def section(self, key: Any, default: Any = _MISSING) -> Section | None:
+        """The mapping at ``key`` (required without ``default``; ``None`` -> None when absent,
+        ``{}`` -> an empty section)."""
         value = self.raw(key, default)
         if key not in self.data:
             return value if value is None else Section(value, self.file, self.key_path(key),
@@ -375,7 +395,8 @@ class Section:
         return Section(value, self.file, self.key_path(key), self.value_line(key),
                        self.key_line(key))
 
-    def list(self, key: Any, default: Any = _MISSING) -> list[tuple[Any, int | None, str]]:
+    def list(self, key: Any, default: Any = _MISSING
+             ) -> builtins.list[tuple[Any, builtins.int | None, builtins.str]]:
         """The items of a list as (item, line, dotted path)."""
         value = self.raw(key, default)
         if key not in self.data:
@@ -392,13 +413,14 @@ class Section:
             self._known.append(key)
             yield key, value
 
-    def _check_range(self, key: Any, value: float, lo: float | None, hi: float | None) -> None:
+    def _check_range(self, key: Any, value: builtins.float, lo: builtins.float | None,
+                     hi: builtins.float | None) -> None:
         if (lo is not None and value < lo) or (hi is not None and value > hi):
             lo_s = "" if lo is None else _fmt(lo)
             hi_s = "" if hi is None else _fmt(hi)
             raise self.error(key, f"(={_fmt(value)}) must be in [{lo_s}...{hi_s}]")
 
-    def finish(self, extra_known: Iterable[str] = ()) -> None:
+    def finish(self, extra_known: Iterable[builtins.str] = ()) -> None:
         """Reject the keys that no getter asked for."""
         known = list(self._known) + list(extra_known)
         for key in self.data:

@@ -85,7 +85,7 @@ def enable(m: RawMaster, cob: int, target: int, sequence=(0x06, 0x07, 0x0F)) -> 
 
 def test_boot_up_heartbeat_and_nmt(bus):
     world, m = bus
-    assert [d for d in m.of(0x70B)] == [b"\x00"]  # boot-up of node 11 after power-on
+    assert list(m.of(0x70B)) == [b"\x00"]  # boot-up of node 11 after power-on
     m.sdo(11).download(0x1017, 0, struct.pack("<H", 20))
     m.run(100)
     hb = m.of(0x70B)[1:]

@@ -56,7 +56,7 @@ def test_the_map_agrees_with_full_simulations_on_both_sides_of_the_boundary(scen
 
 
 def test_boundary_rises_with_the_spacing_and_pick_time_limits_this_cell(cap):
-    b = [x for x in cap.boundary[0]]
+    b = list(cap.boundary[0])
     assert b == sorted(b)                  # wider spacing: a faster belt is fine
     assert set(cap.limit[0]) == {"pick time"}
     assert cap.cycles > 0 and cap.elapsed_s > 0

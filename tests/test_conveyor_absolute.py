@@ -9,9 +9,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from controller.conveyor import (ConveyorCell, FrameLimits, LinkState, Location, MovingFrame,
+from controller.conveyor import (ConveyorCell, LinkState, Location, MovingFrame,
                                  RobotGroup, SimulatedAxis, Window)
-from controller.conveyor.location import q_axis_angle, q_mul, q_rotate
+from controller.conveyor.location import q_axis_angle
 from controller.tracking import Imfs, Limits, TrackerParams
 
 T = 0.002

@@ -77,7 +77,7 @@ def test_can_catch_is_pure():
     f = belt()
     ref_cell, ref = make(belt())
     cell, robot = make(f)
-    for c, r, fr in ((ref_cell, ref, ref_cell.frames[0]), (cell, robot, f)):
+    for _c, r, fr in ((ref_cell, ref, ref_cell.frames[0]), (cell, robot, f)):
         r.master_frame = fr
         r.trigger(fr)
     a, b = [], []

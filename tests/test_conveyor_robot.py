@@ -462,8 +462,8 @@ def test_functional_change_9_5_stop_slave0_and_masterframe_none_are_equivalent()
         robot.trigger(f)
         sync(cell, robot)
         run(cell, 10)
-        {"stop": robot.stop, "slave0": lambda: setattr(robot, "slave", 0),
-         "none": lambda: setattr(robot, "master_frame", None)}[command]()
+        {"stop": robot.stop, "slave0": lambda r=robot: setattr(r, "slave", 0),
+         "none": lambda r=robot: setattr(r, "master_frame", None)}[command]()
         outs = run(cell, 400)
         results.append(positions(outs))
         assert outs[-1].slave == 0

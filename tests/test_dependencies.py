@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 
 tomllib = pytest.importorskip("tomllib")  # Python >= 3.11
-from packaging.requirements import Requirement
+from packaging.requirements import Requirement  # noqa: E402 (after the skip)
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -87,7 +87,7 @@ def test_02_conveyor_cell():
     assert "caught 4, missed 1" in out
     rows = re.findall(r"^\s+(\d+)  (\w+)\s+([\d.]+|-)\s+(\S+)$", out, re.MULTILINE)
     assert [r[1] for r in rows] == ["caught"] * 4 + ["missed"]
-    for _, status, tts, err in rows[:4]:
+    for _, _status, tts, err in rows[:4]:
         assert 0.0 < float(tts) < 1.0
         assert float(err) == 0.0  # following: the setpoint is the item, exactly
 

@@ -47,6 +47,7 @@ def test_the_wheel_runs_the_demo_configuration(tmp_path):
     for eds in ROOT.glob("eds/*.eds"):
         assert f"controller/eds/{eds.name}" in names
     assert "controller/examples/bus/demo.yml" in names
+    assert "controller/py.typed" in names  # PEP 561: users' type checkers read our annotations
     site = tmp_path / "site"
     zipfile.ZipFile(wheel).extractall(site)
     code = ("import controller, sys\n"

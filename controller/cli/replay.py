@@ -65,7 +65,8 @@ def main(argv: list[str] | None = None, prog: str = "cantrack replay") -> int:
             enc = world.device(cfg.tracking.conveyor.node)
             app.eye = PhotoEye(enc.profile, demo, world.clock.now_ns() * 1e-9)
     else:
-        cyc = (lambda s: None if s is None else round(s / cfg.period_s))
+        def cyc(s: float | None) -> int | None:
+            return None if s is None else round(s / cfg.period_s)
         app = ConveyorFollow(cyc(args.engage_at), cyc(args.disengage_at), args.offset,
                              Mode.ABSOLUTE if args.mode == "absolute" else Mode.RELATIVE,
                              end_cycle=cyc(args.duration))

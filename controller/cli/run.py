@@ -39,7 +39,7 @@ from ..canopen.io import canbus
 from ..canopen.io.files import write_json_atomic
 from ..canopen.io.transport import RealtimeTransport
 from ..canopen.master.app import ConveyorFollow
-from ..canopen.master.cycle import Controller, Phase
+from ..canopen.master.cycle import Controller
 from ..errors import CanError
 from ..tracking import Mode
 from .common import StatusLine, add_bus_arguments
@@ -190,7 +190,8 @@ def main(argv: list[str] | None = None, prog: str = "cantrack run") -> int:
     args = build_parser(prog).parse_args(argv)
     cfg = load_bus_config(args.config)
     period = cfg.period_s
-    cyc = (lambda s: None if s is None else round(s / period))
+    def cyc(s: float | None) -> int | None:
+        return None if s is None else round(s / period)
     app = ConveyorFollow(cyc(args.engage_at), cyc(args.disengage_at), args.offset,
                          Mode.ABSOLUTE if args.mode == "absolute" else Mode.RELATIVE,
                          end_cycle=cyc(args.duration))

@@ -54,7 +54,8 @@ def parse_injection(spec: str, names: list[str]) -> tuple[float, str, str, str |
 
 def apply_injection(rack: DeviceRack, node: str, action: str, arg: str | None) -> None:
     d = rack.devices[node]
-    num = (lambda default: int(arg, 0) if arg else default)
+    def num(default: int) -> int:
+        return int(arg, 0) if arg else default
     if action == "fault" and isinstance(d, SimDrive):
         d.inject_fault(num(0x1000))
     elif action == "emcy":

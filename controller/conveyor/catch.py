@@ -40,6 +40,7 @@ from __future__ import annotations
 import copy
 import math
 from dataclasses import dataclass
+from typing import TypedDict
 
 from ..tracking import Mode, MotionState, TrackState
 from .frame import MovingFrame
@@ -49,6 +50,14 @@ from .sources import SourceState
 from .tracker import ConveyorTracker
 from .triggers import TriggerEntry
 from .window import WindowPosition
+
+
+class _Timing(TypedDict, total=False):
+    """The window times a prediction reports besides its verdict [s]."""
+
+    enter_in_s: float
+    leave_in_s: float
+    lower_bound_s: float
 
 
 @dataclass(frozen=True, slots=True)
@@ -111,6 +120,7 @@ def predict_catch(robot, frame: MovingFrame | None = None, item: TriggerEntry | 
     geo = link.geo if link is not None else fr.geometry()
     master = fr.master
     c, cd, _ = fr.coords(item, master)
+    assert master is not None  # coords() raised a StateError before the first update
     win = fr.window
     name, iid = fr.name, item.id
     if win.classify(c, item.inverse) == WindowPosition.AFTER:
@@ -126,7 +136,7 @@ def predict_catch(robot, frame: MovingFrame | None = None, item: TriggerEntry | 
     eff = params.effective()
     pt = geo.point(c, cd, (0.0,) * geo.nof, item.dr_mm, item)
     speed = math.sqrt(sum(x * x for x in pt.vel))
-    common = dict(enter_in_s=t_enter, leave_in_s=t_leave)
+    common: _Timing = {"enter_in_s": t_enter, "leave_in_s": t_leave}
     if speed > fr.limits.VelocityMaxTrans or abs(pt.ang_vel) > fr.limits.VelocityMaxRot:
         return CatchPrediction(False, f"the frame moves faster ({speed:.6g} mm/s, "
                                       f"{abs(pt.ang_vel):.6g} deg/s) than its VelocityMax",
@@ -170,7 +180,7 @@ def predict_catch(robot, frame: MovingFrame | None = None, item: TriggerEntry | 
     if running and tracker.state == TrackState.SYNCED:
         return CatchPrediction(True, "already synchronised", name, iid, True, 0.0,
                                robot.k * T, fr.point(item, master).here, robot.setpoint,
-                               **common, lower_bound_s=0.0)
+                               enter_in_s=t_enter, leave_in_s=t_leave, lower_bound_s=0.0)
     inside_now = win.classify(c, item.inverse) == WindowPosition.INSIDE
     if active and not same_item:
         if inside_now:   # a new approach from the current state

@@ -50,12 +50,13 @@ class ConveyorCell:
         self.frames = _ordered([f for f in frames if f.group_source is None]) + group
         # group frames (a robot's TCP as master) update right after their master robot, and
         # the robots that are masters update first, so the TCP read is this sample's
-        masters = [f.group_source.robot for f in group]
+        masters = [src.robot for f in group if (src := f.group_source) is not None]
         self.robots = [r for r in robots if r in masters] + \
             [r for r in robots if r not in masters]
         self._after: dict[str, list[MovingFrame]] = {}
         for f in group:
-            self._after.setdefault(f.group_source.robot.name, []).append(f)
+            if (src := f.group_source) is not None:
+                self._after.setdefault(src.robot.name, []).append(f)
         T = sample_time_s if sample_time_s is not None else (
             self.robots[0].T if self.robots else None)
         if T is None:

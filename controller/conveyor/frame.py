@@ -40,7 +40,7 @@ from ..errors import ParameterError, StateError
 from ..tracking import Limits, TrackError
 from .frames import FramePoint, GroupGeometry, LinearGeometry, RotaryGeometry
 from .kinematics import Kinematics
-from .location import Location, Vec3, as_location, v_norm
+from .location import Location, Vec3, as_location, v_norm, vec3
 from .sources import GroupSource, MasterSource, SourceState
 from .triggers import TriggerEntry
 from .window import Window, WindowPosition
@@ -51,6 +51,15 @@ if TYPE_CHECKING:
 LINEAR, ROTARY, ROTARY_DECOUPLED, GROUP = 0, 1, 2, 3
 TYPE_NAMES = {LINEAR: "linear", ROTARY: "rotary", ROTARY_DECOUPLED: "rotary decoupled",
               GROUP: "group (robot TCP)"}
+
+
+def _direction(frame: str, i: int, d: Sequence[float]) -> Vec3:
+    """Direction ``i`` of a linear frame as a 3-tuple (a ParameterError otherwise)."""
+    t = tuple(d)
+    if len(t) != 3:
+        raise ParameterError(f"frame {frame!r}: directions[{i}] (={t!r}) must have 3 "
+                             "components (x, y, z)")
+    return t
 
 
 @dataclass(frozen=True, slots=True)
@@ -119,8 +128,9 @@ class MovingFrame:
             raise ParameterError(f"frame {name!r}: NOF (={n}) must equal the number of master "
                                  f"sources ({len(self.sources)})")
         self.nof = int(n)
-        self.directions = tuple(tuple(d) for d in directions) if directions is not None else \
-            tuple(tuple(1.0 if j == i else 0.0 for j in range(3)) for i in range(self.nof))
+        self.directions: tuple[Vec3, ...] = tuple(
+            _direction(name, i, d) for i, d in enumerate(directions)) if directions is not None \
+            else tuple(vec3(1.0 if j == i else 0.0 for j in range(3)) for i in range(self.nof))
         self.scales = tuple(scales) if scales is not None else (1.0,) * self.nof
         self.origin = as_location(origin)
         self.upstream = as_location(upstream) if upstream is not None else None
@@ -149,7 +159,7 @@ class MovingFrame:
         self.engaged_by: str | None = None
         #: robots de-syncing from this frame (it cannot be engaged until the set is empty)
         self.desyncing_by: set[str] = set()
-        self._linked_geometry = None
+        self._linked_geometry: LinearGeometry | RotaryGeometry | GroupGeometry | None = None
         #: the source states of the last update (one per DOF), None before the first
         self.master: tuple[SourceState, ...] | None = None
         self.sample = 0
@@ -222,22 +232,26 @@ class MovingFrame:
     # -- geometry ---------------------------------------------------------------------------
     def _build_geometry(self) -> LinearGeometry | RotaryGeometry | GroupGeometry:
         if self._type == GROUP:
-            return GroupGeometry(self.group_axis, self.group_source.robot.kinematics.dimension)
+            src = self.group_source
+            if src is None:
+                raise ParameterError(f"group frame {self.name!r}: no master robot (group source)")
+            return GroupGeometry(self.group_axis, src.robot.kinematics.dimension)
         if self._type == LINEAR:
             if len(self.directions) != self.nof or len(self.scales) != self.nof:
                 raise ParameterError(f"frame {self.name!r}: give one direction and one scale "
                                      f"per DOF (NOF = {self.nof})")
             return LinearGeometry(self.origin, self.directions, self.scales)
-        missing = [n for n, v in (("UpStream[1]", self.upstream), ("ArcPoint", self.arc_point),
-                                  ("DownStream[1]", self.downstream)) if v is None]
-        if missing:
+        up, arc, down = self.upstream, self.arc_point, self.downstream
+        if up is None or arc is None or down is None:
+            missing = [n for n, v in (("UpStream[1]", up), ("ArcPoint", arc),
+                                      ("DownStream[1]", down)) if v is None]
             raise ParameterError(f"rotary frame {self.name!r}: {', '.join(missing)} not given")
         return RotaryGeometry.from_points(
-            self.upstream, self.arc_point, self.downstream, up_master=self.up_master,
+            up, arc, down, up_master=self.up_master,
             down_master=self.down_master, deg_per_unit=self.deg_per_unit,
             decoupled=self._type == ROTARY_DECOUPLED)
 
-    def geometry(self) -> LinearGeometry | RotaryGeometry:
+    def geometry(self) -> LinearGeometry | RotaryGeometry | GroupGeometry:
         """The pre-calculated geometry while linked, else computed from the current values."""
         if self._linked_geometry is not None:
             return self._linked_geometry
@@ -247,7 +261,9 @@ class MovingFrame:
         if self._type in (LINEAR, GROUP):
             raise StateError(f"<{self.name}>: center/start/normal/radius/alpha exist for "
                              "rotary frames (type 1 or 2) only")
-        return self.geometry()
+        geo = self.geometry()
+        assert isinstance(geo, RotaryGeometry)  # type 1 or 2
+        return geo
 
     @property
     def center(self) -> Vec3:

@@ -42,6 +42,21 @@ UNIT_TOLERANCE = 1e-6
 
 
 # -- 3-vectors ----------------------------------------------------------------------------
+def vec3(a: Iterable[float]) -> Vec3:
+    """``a`` (three components, e.g. a per-axis generator) as a 3-tuple; a ValueError
+    otherwise (for internal results whose length is 3 by construction)."""
+    x, y, z = a
+    return (x, y, z)
+
+
+def pos3(pos: Iterable[float]) -> Vec3:
+    """A location's position given by a caller: a ParameterError unless 3 components."""
+    t = tuple(pos)
+    if len(t) != 3:
+        raise ParameterError(f"location pos (={t!r}) must be 3 finite numbers [mm]")
+    return t
+
+
 def v_add(a: Sequence[float], b: Sequence[float]) -> Vec3:
     return (a[0] + b[0], a[1] + b[1], a[2] + b[2])
 
@@ -215,7 +230,7 @@ class Location:
     def from_axis_angle(cls, pos: Sequence[float], axis: Sequence[float],
                         angle_deg: float) -> "Location":
         """Position [mm] and the rotation Q(angle_deg, axis) (axis normalised here)."""
-        return cls(tuple(pos), q_axis_angle(v_unit(axis, "rotation axis"), angle_deg))
+        return cls(pos3(pos), q_axis_angle(v_unit(axis, "rotation axis"), angle_deg))
 
     # -- softMC's operators (docs/spec/conveyor.md#2.2)
     def oplus(self, other: "Location") -> "Location":
@@ -291,4 +306,4 @@ def as_location(value: Location | Iterable[float]) -> Location:
     """A Location from a Location or a position (x, y, z) [mm] with identity orientation."""
     if isinstance(value, Location):
         return value
-    return Location(tuple(value))
+    return Location(pos3(value))

@@ -36,7 +36,8 @@ from dataclasses import dataclass
 from typing import Any
 
 from ..errors import ParameterError
-from .location import (Location, Q_IDENTITY, Vec3, q_mul, q_power, q_to_axis_angle, v_norm)
+from .location import (Location, Q_IDENTITY, Vec3, pos3, q_mul, q_power, q_to_axis_angle,
+                       v_norm, vec3)
 
 #: marker: a motion that does not change the robot's MasterFrame
 KEEP: Any = object()
@@ -74,7 +75,7 @@ class SCurve:
             raise ParameterError(f"distance (={distance!r}) must be finite and >= 0")
         self.distance = L
         if L == 0.0:
-            self.phases: list[tuple[float, float, float, float, float]] = []
+            self.phases: list[tuple[float, float, float, float, float, float]] = []
             self.duration = 0.0
             return
         V, A, J = float(vel), float(acc), float(jerk)
@@ -151,6 +152,13 @@ class _Factor:
     motion: Motion | None  # None: a constant (shift)
     const: Location | None = None
 
+    @property
+    def delta(self) -> Location:
+        """The displacement at the end: the constant, or the started motion's delta."""
+        d = self.const if self.motion is None else self.motion.delta
+        assert d is not None  # a factor is a constant or a started motion
+        return d
+
 
 class VirtualRobot:
     """The virtual robot of one robot group (world TCP).  See the module docstring."""
@@ -195,7 +203,7 @@ class VirtualRobot:
         """Where the started motions end (B ⊕ every factor at its end)."""
         loc = self.base
         for f in self.factors:
-            loc = loc.oplus(f.const if f.motion is None else f.motion.delta)
+            loc = loc.oplus(f.delta)
         return loc
 
     # -- commands ---------------------------------------------------------------------------
@@ -264,6 +272,7 @@ class VirtualRobot:
         length = m._length  # type: ignore[attr-defined]
         if length == 0.0:
             return 1.0, 0.0, 0.0
+        assert m.profile is not None and m.k0 is not None  # set when it started
         s, sd, sdd = m.profile.at((self.k - m.k0) * self.T)
         return s / length, sd / length, sdd / length
 
@@ -273,33 +282,32 @@ class VirtualRobot:
         vel = [0.0, 0.0, 0.0]
         acc = [0.0, 0.0, 0.0]
         for f in self.factors:
+            d = f.delta
             if f.motion is None:
-                pos = [p + c for p, c in zip(pos, f.const.pos)]
-                ori = q_mul(ori, f.const.ori)
+                pos = [p + c for p, c in zip(pos, d.pos)]
+                ori = q_mul(ori, d.ori)
                 continue
             m = f.motion
             s, sd, sdd = self._s(m)
+            assert m.profile is not None and m.k0 is not None  # set when it started
             if (self.k - m.k0) * self.T >= m.profile.duration:
                 m.done = True
                 s, sd, sdd = 1.0, 0.0, 0.0
-            d = m.delta
             for j in range(3):
                 pos[j] += d.pos[j] * s
                 vel[j] += d.pos[j] * sd
                 acc[j] += d.pos[j] * sdd
             ori = q_mul(ori, d.ori if s == 1.0 else q_power(d.ori, s))
-        self._loc = Location(tuple(pos), ori)
-        self._vel = tuple(vel)
-        self._acc = tuple(acc)
+        self._loc = Location(vec3(pos), ori)
+        self._vel = vec3(vel)
+        self._acc = vec3(acc)
 
     def _fold(self) -> None:
         """Fold leading constants and finished motions into the base (order kept)."""
         while self.factors:
             f = self.factors[0]
-            if f.motion is None:
-                self.base = self.base.oplus(f.const)
-            elif f.motion.done:
-                self.base = self.base.oplus(f.motion.delta)
+            if f.motion is None or f.motion.done:
+                self.base = self.base.oplus(f.delta)
             else:
                 break
             self.factors.pop(0)
@@ -307,7 +315,7 @@ class VirtualRobot:
 
 def displacement(pos: Vec3 = (0.0, 0.0, 0.0), ori=Q_IDENTITY) -> Location:
     """A relative motion's displacement (pos [mm] added, ori multiplied on the right)."""
-    return Location(tuple(pos), ori)
+    return Location(pos3(pos), ori)
 
 
 __all__ = ["KEEP", "Motion", "MotionLimits", "SCurve", "VirtualRobot", "displacement"]

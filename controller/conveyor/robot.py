@@ -95,7 +95,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from enum import IntEnum
-from typing import Any, Iterable, Mapping, Sequence
+from typing import Any, Iterable, Mapping, Sequence, overload
 
 from ..errors import CantrackError, ParameterError, StateError
 from ..tracking import Imfs, Mode, MotionState, TrackError, TrackerParams, TrackState
@@ -104,7 +104,7 @@ from .frame import MovingFrame
 from .kinematics import Kinematics, check_compatible
 from .frames import FramePoint, GroupGeometry, RotaryGeometry
 from .location import (Q_IDENTITY, Location, Quat, Vec3, as_location, q_axis_angle, q_conj,
-                       q_mul, q_to_axis_angle, q_twist_angle)
+                       q_mul, q_to_axis_angle, q_twist_angle, vec3)
 from .motion import KEEP, Motion, MotionLimits, VirtualRobot
 from .telemetry import ItemRecord, ItemStatus
 from .tracker import ConveyorTracker
@@ -266,13 +266,15 @@ class FrameLink:
     def _evaluate(self) -> None:
         """Item coordinates, window position and tracker target from the frame's master."""
         item = self.item
+        assert item is not None  # called with an assigned item
         c, cd, cdd = self.frame.coords(item)
         self.point = self.geo.point(c, cd, cdd, item.dr_mm, item)
         self.window_position = self.frame.window.classify(c, item.inverse)
 
     def _make_target(self) -> MotionState:
         p, ref, o = self.point, self.ref, self.offset_pos
-        pos = tuple(h - r + q for h, r, q in zip(p.here.pos, ref.pos, o))
+        assert p is not None and ref is not None  # the caller checked both
+        pos = vec3(h - r + q for h, r, q in zip(p.here.pos, ref.pos, o))
         return MotionState(pos, p.vel, p.acc, p.ang + self.twist_deg + self.offset_ang,
                            p.ang_vel, p.ang_acc)
 
@@ -282,10 +284,12 @@ class FrameLink:
         θ_O = 0; else its part about s)."""
         if not self.offset_ang:
             return self.offset_swing + self.swing_deg
+        s = self.swing_axis
+        assert s is not None  # a swing channel exists
         qa = q_axis_angle(self.axis, self.offset_ang)
-        q = q_mul(q_mul(q_axis_angle(self.swing_axis, self.offset_swing), qa),
-                  q_mul(q_axis_angle(self.swing_axis, self.swing_deg), q_conj(qa)))
-        return q_twist_angle(q, self.swing_axis)
+        q = q_mul(q_mul(q_axis_angle(s, self.offset_swing), qa),
+                  q_mul(q_axis_angle(s, self.swing_deg), q_conj(qa)))
+        return q_twist_angle(q, s)
 
     def _orientation_offset(self) -> None:
         """slave = 3 (absolute): the setpoint must reach ``<MF>.here`` in orientation too.
@@ -299,6 +303,7 @@ class FrameLink:
         On a frame whose orientation does not turn (linear, rotary decoupled) a is chosen as
         E's own axis at the first engage, so there is no swing.
         """
+        assert self.ref is not None and self.item is not None  # at the engage of an item
         e = q_mul(q_conj(self.ref.ori), self.geo.zero(self.item.dr_mm, self.item).ori)
         if self._axis_free and self.tracker.state == TrackState.OFF and \
                 self.offset_ang == 0.0 and self.tracker.setpoint.ang == 0.0:
@@ -334,6 +339,7 @@ class FrameLink:
             self._reapproach = True
         else:
             tr.engage()
+        assert self.record is not None and self.item is not None  # engaging an item
         self.record.engaged_sample = k
         self.record.status = ItemStatus.TRACKING
         ev.append(Event(k, "engaged", self.frame.name, self.item.id))
@@ -409,6 +415,7 @@ class FrameLink:
             self._evaluate()
         if self.item is not None and not self.leaving:
             rec = self.record
+            assert rec is not None  # kept with the item
             wp = self.window_position
             if wp == WindowPosition.INSIDE and rec.entered_sample is None:
                 rec.entered_sample = k
@@ -434,8 +441,8 @@ class FrameLink:
             self.target = self._make_target()
             if isinstance(self.geo, RotaryGeometry):
                 arc = self.geo.arc
-                center = tuple(c - r + o for c, r, o in zip(arc.center, self.ref.pos,
-                                                           self.offset_pos))
+                center = vec3(c - r + o for c, r, o in zip(arc.center, self.ref.pos,
+                                                          self.offset_pos))
                 tr.set_arc(center, arc.axis, couple_angle=self.geo.rotates)
         was_synced = self.track_state == TrackState.SYNCED
         out = tr.update(self.target)
@@ -487,6 +494,7 @@ class FrameLink:
     def _missed(self, k: int, ev: list[Event]) -> TrackError:
         item = self.item
         rec = self.record
+        assert item is not None and rec is not None  # a missed item is the current one
         rec.missed_sample = k
         rec.error = f"Item missed ({ITEM_MISSED_CODE})"
         self.robot.buffer.remove(item)
@@ -501,7 +509,8 @@ class FrameLink:
     def _absorb_stop(self, k: int, ev: list[Event]) -> None:
         """A de-sync started: move its end E into the virtual robot, C = D̃ ⊖ E from now on."""
         e = self.tracker.desync_end
-        dpos = tuple(a - b for a, b in zip(e.pos, self.offset_pos))
+        assert e is not None  # set when the de-sync started
+        dpos = vec3(a - b for a, b in zip(e.pos, self.offset_pos))
         sw = self.swing
         if sw is None:
             dang = e.ang - self.offset_ang
@@ -765,6 +774,11 @@ class RobotGroup:
                             message=f"type {e.item_type} is not tracked"))
 
     # -- triggers ---------------------------------------------------------------------------
+    @overload
+    def _resolve(self, frame: MovingFrame | None, command: str) -> MovingFrame: ...
+    @overload
+    def _resolve(self, frame: MovingFrame | str | None, command: str) -> MovingFrame | str: ...
+
     def _resolve(self, frame: MovingFrame | str | None, command: str) -> MovingFrame | str:
         if frame is not None:
             return frame
@@ -801,8 +815,9 @@ class RobotGroup:
         Raises :class:`TriggerBufferFull` when the buffer is full.
         """
         fr = self._resolve(frame, "TRIGGER")
-        if isinstance(fr, str) and self.link_for(fr) is not None:
-            fr = self.link_for(fr).frame
+        link = self.link_for(fr) if isinstance(fr, str) else None
+        if link is not None:
+            fr = link.frame
         name = fr if isinstance(fr, str) else fr.name
         if values is not None:
             vals = [float(v) for v in values]
@@ -860,10 +875,13 @@ class RobotGroup:
             if offset is not None:
                 raise ParameterError("TRIGGER: give offset or location, not both")
             return as_location(location)
-        now = fr.group_source.location()
+        src = fr.group_source
+        if src is None:
+            raise ParameterError(f"TRIGGER: frame {fr.name!r} is not a group frame (type 3)")
+        now = src.location()
         cur = fr.source_values()
         back = q_axis_angle(fr.group_axis, vals[3] - cur[3])
-        l0 = Location(tuple(vals[:3]), q_mul(back, now.ori))
+        l0 = Location(vec3(vals[:3]), q_mul(back, now.ori))
         return l0.compound(offset) if offset is not None else l0
 
     def _record(self, entry: TriggerEntry) -> ItemRecord:
@@ -1005,7 +1023,7 @@ class RobotGroup:
             vel = [a + b for a, b in zip(vel, cv)]
         self._drop_done()
         self.setpoint = loc
-        self.velocity = tuple(vel)
+        self.velocity = vec3(vel)
         a = self._active()
         out = RobotOutput(k, loc, self.velocity, v.location, self.imfs, self._slave,
                           a.frame.name if a is not None else None,

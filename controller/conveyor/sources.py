@@ -29,6 +29,7 @@ from typing import TYPE_CHECKING, Callable, Protocol, Sequence
 
 from ..errors import ParameterError, StateError
 from ..tracking import MasterEstimator, unwrap_counts
+from .location import vec3
 
 if TYPE_CHECKING:
     from .frame import MovingFrame
@@ -226,7 +227,7 @@ class GroupSource:
             w = wd = 0.0
         else:
             pv, pth, pw = self._prev
-            acc = tuple((a - b) / T for a, b in zip(vel, pv))
+            acc = vec3((a - b) / T for a, b in zip(vel, pv))
             w = (theta - pth) / T
             wd = (w - pw[0]) / T
         self._prev = (vel, theta, (w,))

@@ -36,7 +36,8 @@ from dataclasses import dataclass
 from ..tracking import MotionState, Tracker, TrackerParams, TrackState
 from ..tracking.desync import Desync, SineStop
 from ..tracking.vec import Vec
-from .location import Vec3, v_cross, v_dot, v_norm, v_scale, v_sub
+from ..errors import ParameterError
+from .location import Vec3, v_cross, v_dot, v_norm, v_scale, v_sub, vec3
 
 
 @dataclass(frozen=True, slots=True)
@@ -89,7 +90,10 @@ class ConveyorTracker(Tracker):
     def set_arc(self, center: Vec3 | None, axis: Vec3 | None = None,
                 couple_angle: bool = True) -> None:
         """The arc (a point on its axis, unit axis) for the next de-sync; None: a line."""
-        self._arc = None if center is None else (tuple(center), tuple(axis), couple_angle)
+        if center is not None and axis is None:
+            raise ParameterError("set_arc: an arc needs its axis with its center")
+        self._arc = None if center is None or axis is None else (
+            vec3(center), vec3(axis), couple_angle)
 
     def _build_desync(self, _tracker: Tracker) -> tuple[Desync, Desync] | None:
         """The core's ``desync_builder``: along the arc when one is set and synchronised."""
@@ -110,7 +114,7 @@ class ConveyorTracker(Tracker):
             return None
         start = v_scale(radial, 1.0 / r)
         normal = v_cross(axis, start)
-        c0 = tuple(c + h * a for c, a in zip(center, axis))
+        c0 = vec3(c + h * a for c, a in zip(center, axis))
         cur = self.params.desync_from_current_acceleration
         sd0 = v_dot(sp.vel, normal) / r
         sdd0 = v_dot(sp.acc, normal) / r if cur else 0.0

@@ -247,6 +247,6 @@ def _messages(messages) -> str:
     if not messages or not isinstance(messages, list):
         return ""
     out = io.StringIO()
-    for status, category, text in messages[-3:]:
+    for _status, category, text in messages[-3:]:
         out.write(f"[{category}] {text}\n")
     return out.getvalue().rstrip()

@@ -101,7 +101,7 @@ class CanConveyor(Fmi2Slave):
     def __init__(self, **kwargs) -> None:
         super().__init__(**kwargs)
         self._t0 = 0.0
-        for name, typ, causality, variability, start, unit, desc in VARIABLES:
+        for name, typ, causality, variability, start, _unit, desc in VARIABLES:
             setattr(self, name, start if start is not None else (False if typ == "Boolean"
                                                                  else 0.0))
             cls = Real if typ == "Real" else Boolean

@@ -128,4 +128,5 @@ class EncoderScale:
     def belt_mm(self, raw: int) -> float:
         """Belt travel [mm] since the first sample."""
         u = self.unwrap(raw)
+        assert self._first is not None  # set by the first unwrap()
         return self.sign * (u - self._first) / self.counts_per_mm

@@ -13,11 +13,12 @@ from __future__ import annotations
 import math
 import numbers
 from dataclasses import dataclass, replace
+from typing import TypeGuard
 
 from ..errors import ParameterError
 
 
-def _is_real(value: object) -> bool:
+def _is_real(value: object) -> TypeGuard[float]:
     return isinstance(value, numbers.Real) and not isinstance(value, bool)
 
 
@@ -32,21 +33,21 @@ def require_positive(owner: str, name: str, value: object, unit: str) -> None:
     ``owner`` and ``name`` say where the value sits (``"AxisLimits"``, ``"max_vel"``),
     ``unit`` is printed with it.
     """
-    if not (_is_real(value) and math.isfinite(value) and value > 0):  # type: ignore[arg-type]
+    if not (_is_real(value) and math.isfinite(value) and value > 0):
         raise ParameterError(
             f"{owner}.{name} (={value!r} {unit}) is out of range: must be a finite number > 0")
 
 
 def require_non_negative(owner: str, name: str, value: object, unit: str) -> None:
     """Raise :class:`ParameterError` unless ``value`` is a finite number >= 0."""
-    if not (_is_real(value) and math.isfinite(value) and value >= 0):  # type: ignore[arg-type]
+    if not (_is_real(value) and math.isfinite(value) and value >= 0):
         raise ParameterError(
             f"{owner}.{name} (={value!r} {unit}) is out of range: must be a finite number >= 0")
 
 
 def require_finite(owner: str, name: str, value: object, unit: str) -> None:
     """Raise :class:`ParameterError` unless ``value`` is a finite number."""
-    if not (_is_real(value) and math.isfinite(value)):  # type: ignore[arg-type]
+    if not (_is_real(value) and math.isfinite(value)):
         raise ParameterError(
             f"{owner}.{name} (={value!r} {unit}) is out of range: must be a finite number")
 

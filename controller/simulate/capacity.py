@@ -50,6 +50,7 @@ import numpy as np
 
 from ..conveyor import Window
 from ..conveyor.frame import LINEAR
+from ..conveyor.frames import LinearGeometry, RotaryGeometry
 from ..errors import ConfigError, ParameterError
 from .conveyor import ConveyorScenario, build_conveyor
 
@@ -134,7 +135,13 @@ def pick_cycle(sc: ConveyorScenario, speed: float, x0: float, window_shift: floa
     # the item is x0 past the sensor: its trigger value is the frame's continuous
     # master value now minus x0 in master units (no counter wrap: the value is not latched)
     geo = frame.geometry()
-    per = geo.scales[0] if frame.type == LINEAR else geo.deg_per_unit
+    if isinstance(geo, LinearGeometry):
+        per = geo.scales[0]
+    elif isinstance(geo, RotaryGeometry):
+        per = geo.deg_per_unit
+    else:
+        raise ParameterError(f"capacity: frame {frame.name!r} is a group frame (type 3): "
+                             "no belt to sweep")
     entry = robot.trigger(frame, values=(frame.source_values()[0] - x0 / per,))
     k0 = cell.k
     w = s.frame.window
@@ -313,7 +320,7 @@ def capacity(sc: ConveyorScenario, speeds: Sequence[float], spacings: Sequence[f
                                            for _ in shifts]
     boundary: list[list[float | None]] = []
     limit: list[list[str]] = []
-    for i, sh in enumerate(shifts):
+    for i, _sh in enumerate(shifts):
         prof = profiles[i * len(speeds):(i + 1) * len(speeds)]
         brow, lrow = [], []
         for j, s in enumerate(spacings):
@@ -395,7 +402,7 @@ def plot_capacity(result: CapacityResult, path, *, dpi: int = 110):
                           for k in range(len(v))] for j in range(len(s))])
         ax.pcolormesh(_edges(v), _edges(s), grid, cmap=cmap, vmin=-0.5, vmax=4.5,
                       shading="flat")
-        bx = [b for b in r.boundary[i]]
+        bx = list(r.boundary[i])
         ax.plot([b if b is not None else np.nan for b in bx], s, "k.-", lw=1.5,
                 label="fastest 100 % speed")
         vv, ss = np.meshgrid(np.linspace(v[0], v[-1], 50), np.linspace(s[0], s[-1], 50))

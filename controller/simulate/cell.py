@@ -62,6 +62,7 @@ import numpy as np
 from ..conveyor import (ConveyorCell, EncoderSource, Event, Kinematics, Location, MovingFrame,
                         RobotGroup, SimulatedAxis, TriggerBufferFull, Window)
 from ..conveyor.frame import LINEAR
+from ..conveyor.frames import LinearGeometry, RotaryGeometry
 from ..conveyor.sources import quantise_counts
 from ..conveyor.telemetry import ItemRecord
 from ..errors import CantrackError, ParameterError
@@ -540,7 +541,7 @@ def run_cell(sc: CellScenario) -> CellResult:
     traces = {name: dict(pos=[r.setpoint.pos], ori=[r.setpoint.ori], imfs=[0], slave=[0],
                          mf=[""], events=[]) for name, r in robots.items()}
     mvals = {name: [tuple(s.pos for s in f.master)] for name, f in frames.items()}
-    last: dict[str, tuple[Event, ...]] = {name: () for name in robots}
+    last: dict[str, tuple[Event, ...]] = dict.fromkeys(robots, ())
     for k in range(n):
         for s, i in by_k.get(k, ()):
             group = frames[s.frame].group_source is not None
@@ -701,12 +702,12 @@ def plot_cell_result(result: CellResult, path: str | Path, *, dpi: int = 110) ->
         g = f.geometry()
         c = colours[i % len(colours)]
         w = f.window
-        if f.type == LINEAR:
+        if isinstance(g, LinearGeometry):
             o = np.array(g.origin.pos)
             pts = [o]
             corners = []
-            for d, (u, dn) in zip(g.directions, zip(w.upstream, w.downstream)):
-                corners.append((np.array(d), max(u, -1e5), min(dn, 1e5)))
+            for dv, (u, dn) in zip(g.directions, zip(w.upstream, w.downstream)):
+                corners.append((np.array(dv), max(u, -1e5), min(dn, 1e5)))
             if len(corners) == 1:
                 d, u, dn = corners[0]
                 seg = np.array([o + d * u, o + d * dn])
@@ -718,7 +719,7 @@ def plot_cell_result(result: CellResult, path: str | Path, *, dpi: int = 110) ->
                                 ((u1, u2), (e1, u2), (e1, e2), (u1, e2), (u1, u2))])
                 ax.plot(box[:, 0], box[:, 1], color=c, lw=2, label=f"frame {name} window")
             ax.plot(pts[0][0], pts[0][1], "s", color=c, ms=5)
-        else:
+        elif isinstance(g, RotaryGeometry):
             arc = g.arc
             xs = np.linspace(max(0.0, w.upstream[0]), min(arc.alpha_deg, w.downstream[0]), 91)
             win = np.array([arc.position(x) for x in xs])

@@ -216,7 +216,7 @@ def _frame(node) -> FrameSpec:
     limits = FrameLimits()
     ln = node.section("limits")
     if ln is not None:
-        names = [f for f in FrameLimits.__dataclass_fields__]
+        names = list(FrameLimits.__dataclass_fields__)
         ln.check_keys(names)
         values = {f: ln.number(f, getattr(limits, f), lo=0.0, lo_open=True) for f in names}
         limits = FrameLimits(**values)
@@ -630,12 +630,14 @@ class ConveyorResult:
     def item_coords(self, item_id: int, k: int) -> tuple[float, ...]:
         """The item's frame coordinates at sample ``k`` (mm / deg from its trigger)."""
         t_ev = self.triggers[[r.item_id for r in self.records].index(item_id)]
+        assert t_ev.values is not None  # recorded with the entry's latched values
         return tuple(self.frame.geometry().coords([self.master_value[k]], t_ev.values))
 
     def item_position(self, item_id: int, k: int) -> np.ndarray:
         """Where item ``item_id`` is at sample ``k`` (``<MF>.here`` of its trigger, world)."""
         t_ev = self.triggers[[r.item_id for r in self.records].index(item_id)]
         geo = self.frame.geometry()
+        assert t_ev.values is not None  # recorded with the entry's latched values
         c = geo.coords([self.master_value[k]], t_ev.values)
         z = (0.0,) * geo.nof
         return np.array(geo.point(c, z, z, t_ev.dr_mm).here.pos)
@@ -681,7 +683,7 @@ def build_conveyor(sc: ConveyorScenario) -> ConveyorSetup:
         if ms.log is not None:
             counts: Any = list(ms.log)
         else:
-            counts = lambda k: quantise_counts(fn(k * T)[0], cpu, ms.encoder.modulus)  # noqa
+            counts = lambda k: quantise_counts(fn(k * T)[0], cpu, ms.encoder.modulus)  # noqa: E731
         source = EncoderSource(T, modulus=ms.encoder.modulus, counts=counts,
                                window=ms.encoder.window, name="encoder")
     else:
@@ -801,8 +803,10 @@ def run_conveyor(sc: ConveyorScenario) -> ConveyorResult:
         end = min(n, end + round(0.2 / T))
         ks = np.arange(k0, end + 1, max(1, round(0.01 / T)))
         pts = []
+        values = t_ev.values
+        assert values is not None  # recorded with the entry's latched values
         for k in ks:
-            c = geo.coords([mv[k]], t_ev.values)
+            c = geo.coords([mv[k]], values)
             pts.append(geo.point(c, (0.0,) * geo.nof, (0.0,) * geo.nof, t_ev.dr_mm).here.pos)
         paths[rec.item_id] = (ts[ks], np.array(pts).reshape(-1, 3))
     return ConveyorResult(

@@ -227,7 +227,7 @@ def plot_conveyor_result(result, path: str | Path, *, dpi: int = 110) -> Path:
             label="window")
     zero = f.zero()
     ax.plot(zero.pos[0], zero.pos[1], "s", color="k", ms=5, label="trigger point (MF.zero)")
-    for rid, (ts, pts) in r.item_paths.items():
+    for _rid, (_ts, pts) in r.item_paths.items():
         ax.plot(pts[:, 0], pts[:, 1], color="0.6", lw=0.6)
     T = r.sample_time_s
     picked, missed = marker_points(r)

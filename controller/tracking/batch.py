@@ -64,7 +64,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import ParameterError, StateError
-from .desync import Desync
+from .desync import Desync, LinearPath
 from .types import Limits, Mode, MotionState, TrackerParams, TrackError, TrackState
 
 __all__ = ["BatchOutput", "BatchTracker", "benchmark"]
@@ -171,6 +171,36 @@ class _Cols:
                  "thr", "thr_lo", "thr_hi", "directional", "pred_acc", "brake", "eos", "mid",
                  "dims", "any_directional", "any_no_pred_acc", "any_brake", "any_eos",
                  "any_lit", "any_mid")
+
+    # per column (float64): V, V*T, A*T^2, J*T^3, A, J, 2J, damping, time-to-reach factors
+    V: np.ndarray
+    VT: np.ndarray
+    AT2: np.ndarray
+    JT3: np.ndarray
+    A: np.ndarray
+    J: np.ndarray
+    twoJ: np.ndarray
+    damp: np.ndarray
+    k_faster: np.ndarray
+    k_slower: np.ndarray
+    #: sync thresholds (velocity, position) x column, and the exact-recompute band around them
+    thr: np.ndarray
+    thr_lo: np.ndarray
+    thr_hi: np.ndarray
+    # per column (bool): the SoftMcOptions switches; dims: the channel's dimension (int64)
+    directional: np.ndarray
+    pred_acc: np.ndarray
+    brake: np.ndarray
+    eos: np.ndarray
+    mid: np.ndarray
+    dims: np.ndarray
+    # any column with the switch set (finish())
+    any_directional: bool
+    any_no_pred_acc: bool
+    any_brake: bool
+    any_eos: bool
+    any_lit: bool
+    any_mid: bool
 
     def take(self, idx: np.ndarray) -> _Cols:
         out = _Cols()
@@ -806,8 +836,10 @@ class BatchTracker:
             for c, d in ((i, tr), (n + i, rot)):
                 cols.append(c)
                 rows.append(d.stop)
-                o = tuple(d.path.origin) + (0.0,) * (3 - len(d.path.origin))
-                u = tuple(d.path.direction) + (0.0,) * (3 - len(d.path.direction))
+                path = d.path
+                assert isinstance(path, LinearPath)  # Desync.linear's path
+                o = tuple(path.origin) + (0.0,) * (3 - len(path.origin))
+                u = tuple(path.direction) + (0.0,) * (3 - len(path.direction))
                 origins.append(o)
                 dirs.append(u)
         nmax = max(len(s.segments) for s in rows)
@@ -955,6 +987,8 @@ class BatchTracker:
         """
         n = self.n
         count = int(np.count_nonzero(mask))
+        tsel: slice | np.ndarray
+        csel: slice | np.ndarray
         if count == n or count >= self._dense_min:
             tsel = csel = slice(None)
             ns = n
@@ -965,11 +999,12 @@ class BatchTracker:
             def get(arr):
                 return arr
         else:
-            tsel = np.flatnonzero(mask)
-            csel = np.concatenate([tsel, tsel + n])
+            sel = np.flatnonzero(mask)
+            tsel = sel
+            csel = csel_idx = np.concatenate([sel, sel + n])
             ns = count
             tmask = cmask = None
-            c = self._cols.take(csel)
+            c = self._cols.take(csel_idx)
 
             def get(arr):
                 return np.take(arr, csel, axis=-1)

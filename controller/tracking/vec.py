@@ -12,6 +12,13 @@ import math
 Vec = tuple[float, ...]
 
 
+def vec3(a: Vec) -> tuple[float, float, float]:
+    """``a`` as a 3-D translation (the fixed-length channel of a ``MotionState``); a
+    ValueError unless it has 3 components."""
+    x, y, z = a
+    return (x, y, z)
+
+
 def add(a: Vec, b: Vec) -> Vec:
     return tuple([x + y for x, y in zip(a, b)])
 

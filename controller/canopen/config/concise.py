@@ -169,6 +169,9 @@ def _configure_pdo(p: PdoState, s: PdoSetting, od: ObjectDictionary, node_id: in
                 sdo.append(SdoValue(mapidx, 0, 0, 1))
             for n, e in enumerate(s.mapping, start=1):
                 var = odm.variable(od, e.index, e.sub_index)
+                if var is None:
+                    raise ConfigError(f"node {node_id}: PDO mapping entry "
+                                      f"{e.index:04X}h sub {e.sub_index} is not in the EDS")
                 bits = len(var)
                 p.mapping.append((e.index, e.sub_index, bits))
                 sdo.append(SdoValue(mapidx, n, (e.index << 16) | (e.sub_index << 8) | bits, 4))

@@ -29,7 +29,7 @@ from types import MappingProxyType
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
-    from ..yamlmarks import Section
+    from ...yamlmarks import Section
 
 
 class Reaction(Enum):

@@ -279,7 +279,7 @@ def _conveyor(s: Section, cfg: BusConfig) -> ConveyorConfig:
         counts_per_mm=s.float("counts_per_mm", above=0.0),
         sign=s.int("sign", 1, allowed=(1, -1)), modulus=modulus,
         origin=s.vector("origin", 3, (0.0, 0.0, 0.0)),
-        direction=tuple(x / n for x in direction),
+        direction=(direction[0] / n, direction[1] / n, direction[2] / n),
         window=window, degree=degree,
         silent_cycles=s.int("silent_cycles", 5, min=1, max=10_000))
     s.finish()
@@ -447,7 +447,7 @@ def _tracker(s: Section, sample_time_s: float) -> TrackerParams:
         elif key == "softmc":
             o = s.section(key)
             start = SoftMcOptions.literal() if o.bool("literal", False) else SoftMcOptions()
-            vals = {g.name: o.bool(g.name, getattr(start, g.name))
+            vals: dict[str, Any] = {g.name: o.bool(g.name, getattr(start, g.name))
                     for g in dataclasses.fields(SoftMcOptions)}
             o.finish()
             changes[key] = SoftMcOptions(**vals)

@@ -438,7 +438,7 @@ class Controller:
             if sw is not None:
                 s.seen(k, sw)
             if s.confirmed_cycle is None and s.stage is not StopStage.UNCONFIRMED \
-                    and sw is not None and is_stopped(sw):
+                    and s.begin_cycle is not None and sw is not None and is_stopped(sw):
                 s.confirmed_cycle = k
                 how = "TPDO" if inp is not None else "SDO"
                 self.events.add(k, t_s, a.label, "stop_confirmed",

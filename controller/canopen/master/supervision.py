@@ -33,7 +33,7 @@ from ..protocol.emcy_codes import describe, is_error_reset
 from ..protocol.frames import FrameHygiene
 
 if TYPE_CHECKING:
-    from .config import BusConfig
+    from ..config import BusConfig
 
 NMT_NAMES = {0: "boot-up", 4: "stopped", 5: "operational", 127: "pre-operational"}
 

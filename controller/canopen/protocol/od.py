@@ -95,9 +95,10 @@ def profile(od: ObjectDictionary) -> int:
 
 
 def in_range(var: ODVariable, value: int) -> bool:
-    lo, hi = INT_RANGE.get(var.data_type, (None, None))
-    return lo is None or lo <= value <= hi
+    rng = type_range(var)
+    return rng is None or rng[0] <= value <= rng[1]
 
 
 def type_range(var: ODVariable) -> tuple[int, int] | None:
-    return INT_RANGE.get(var.data_type)
+    """The value range of an integer data type; None for other types (or none given)."""
+    return INT_RANGE.get(var.data_type) if var.data_type is not None else None

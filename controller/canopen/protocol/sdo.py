@@ -106,7 +106,7 @@ class SdoClient:
         self._response = None
         t.subscribe(0x580 + self.node_id, self._on_response)
         try:
-            for attempt in range(self.retries + 1):
+            for _attempt in range(self.retries + 1):
                 t.send(0x600 + self.node_id, request)
                 self.requests += 1
                 deadline = t.clock.now_ns() + int(self.timeout_s * 1e9)

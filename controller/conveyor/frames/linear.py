@@ -20,7 +20,7 @@ from dataclasses import dataclass
 from typing import Sequence
 
 from ...errors import ParameterError
-from ..location import Location, Vec3, v_unit
+from ..location import Location, Vec3, v_unit, vec3
 from .base import FramePoint
 
 
@@ -75,4 +75,4 @@ class LinearGeometry:
                 p[j] += d[j] * x
                 v[j] += d[j] * xd
                 a[j] += d[j] * xdd
-        return FramePoint(Location(tuple(p), self.origin.ori), tuple(v), tuple(a))
+        return FramePoint(Location(vec3(p), self.origin.ori), vec3(v), vec3(a))

@@ -62,7 +62,7 @@ from typing import Sequence
 
 from ...errors import ParameterError
 from ..errors import ArcGeometryError
-from ..location import (Location, Quat, Vec3, q_axis_angle, q_conj, q_mul, q_rotate,
+from ..location import (Location, Quat, Vec3, vec3, q_axis_angle, q_conj, q_mul, q_rotate,
                         q_twist_angle, q_angle_between, v_add, v_cross, v_dot, v_norm, v_scale,
                         v_sub)
 from .base import FramePoint
@@ -90,8 +90,8 @@ class ArcGeometry:
         xr = math.radians(x_deg)
         r = self.radius + dr_mm
         c, s = math.cos(xr), math.sin(xr)
-        return tuple(o + r * (a * c + b * s) for o, a, b in zip(self.center, self.start,
-                                                               self.normal))
+        return vec3(o + r * (a * c + b * s) for o, a, b in zip(self.center, self.start,
+                                                              self.normal))
 
 
 def arc_from_points(up: Sequence[float], arc_point: Sequence[float],
@@ -214,9 +214,9 @@ class RotaryGeometry:
         cs, sn = math.cos(xr), math.sin(xr)
         radial = tuple(a * cs + b * sn for a, b in zip(arc.start, arc.normal))
         tangent = tuple(-a * sn + b * cs for a, b in zip(arc.start, arc.normal))
-        pos = tuple(o + r * u for o, u in zip(arc.center, radial))
-        vel = tuple(r * wd * t for t in tangent)
-        acc = tuple(r * (wdd * t - wd * wd * u) for t, u in zip(tangent, radial))
+        pos = vec3(o + r * u for o, u in zip(arc.center, radial))
+        vel = vec3(r * wd * t for t in tangent)
+        acc = vec3(r * (wdd * t - wd * wd * u) for t, u in zip(tangent, radial))
         here = Location(pos, self.orientation(x))
         if self.decoupled:
             return FramePoint(here, vel, acc)
