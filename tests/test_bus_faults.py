@@ -84,7 +84,8 @@ def test_short_frame_on_the_encoder_tpdo_is_dropped_and_counted(make):
     assert "EMCY 8210h" in bad[0].detail and bad[0].reaction == "reported"
     assert ctl.hygiene.counts == {ENCODER_TPDO: 1}
     assert not [e for e in ctl.events if e.reaction.startswith("quick stop")]
-    assert ctl.exit_code() == 0 and ctl.phase.value == "stopped"  # normal end, disabled
+    # the run ends normally (drives disabled), exit 3: never 0 after a fault
+    assert ctl.exit_code() == 3 and ctl.phase.value == "stopped"
 
 
 def test_long_pdo_is_used_and_counted(make):

@@ -537,15 +537,17 @@ class Controller:
                 s.seen(a.input.cycle, a.input.statusword)
 
     def exit_code(self) -> int:
-        """0 normal end; 2 an error (enable failed, internal error); 3 a reaction happened,
-        every drive's stop confirmed; 4 a reaction happened and a drive's stop is
-        unconfirmed.  Never 0 after a fault."""
+        """0 normal end (no fault seen); 2 an error (enable failed, internal error); 3 a
+        fault was seen and handled (a reaction: quick stop, de-sync, or a disturbance
+        reported), every stopped drive confirmed; 4 a drive's stop is unconfirmed.  Never 0
+        after a fault."""
         if self.failure is not None:
             return EXIT_ERROR
-        if not any(e.reaction and e.reaction.startswith("quick stop") for e in self.events):
+        if not any(e.reaction for e in self.events):
             return EXIT_OK
-        if self.phase is not Phase.STOPPED or any(s.confirmed_cycle is None
-                                                  for s in self.stops):
+        stopping = any(s.begin_cycle is not None for s in self.stops)
+        if stopping and (self.phase is not Phase.STOPPED or
+                         any(s.confirmed_cycle is None for s in self.stops)):
             return EXIT_UNCONFIRMED
         return EXIT_REACTION
 

@@ -197,6 +197,11 @@ class SimNode:
         self.heartbeat_enabled = True
         self._schedule_heartbeat(self.clock.now_ns())
 
+    def reset_itself(self) -> None:
+        """The node resets on its own (a watchdog, a supply glitch): reset application, then
+        its boot-up after ``boot_delay_ns``, in pre-operational with its EDS defaults."""
+        self._reset(application=True)
+
     def power_off(self) -> None:
         """The node disappears: it neither answers nor sends."""
         self.powered = False
