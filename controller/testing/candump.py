@@ -18,6 +18,7 @@ import signal
 import subprocess
 import time
 from pathlib import Path
+from typing import BinaryIO
 
 from ..errors import CantrackError
 
@@ -70,7 +71,7 @@ class CandumpCapture:
         self.candump = candump or shutil.which("candump")
         self.proc: subprocess.Popen | None = None
         self.info: CaptureInfo | None = None
-        self._out = None
+        self._out: BinaryIO | None = None
 
     def start(self, timeout_s: float = 20.0) -> CandumpCapture:
         if self.candump is None:

@@ -118,7 +118,10 @@ class Endpoint(Protocol):
 
 
 class Transport(Protocol):
-    clock: Clock
+    # read-only for the user of a transport, so a transport may keep a more precise clock
+    # type (RealtimeTransport's RealtimeClock) than the protocol's
+    @property
+    def clock(self) -> Clock: ...
 
     def send(self, can_id: int, data: bytes | bytearray) -> None: ...
 
