@@ -66,9 +66,10 @@ HM_ERROR = 1 << 13  #: statusword bit 13 in homing mode: homing error
 class SimDrive(SimNode):
     kind = "drive"
 
-    def __init__(self, name: str, eds: str, node_id: int, network: Any, clock: Any,
+    def __init__(self, name: str, eds: str, node_id: int, bus: Any,
                  params: DriveParams | None = None, **kw: Any) -> None:
-        super().__init__(name, eds, node_id, network, clock, **kw)
+        super().__init__(name, eds, node_id, bus, **kw)
+        clock = self.clock
         self.params = params or DriveParams()
         self.x = float(self.params.initial_counts)  # actual position [counts]
         self.v = 0.0  # actual velocity [counts/s]

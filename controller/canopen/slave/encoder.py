@@ -68,9 +68,10 @@ class SpeedProfile:
 class SimEncoder(SimNode):
     kind = "encoder"
 
-    def __init__(self, name: str, eds: str, node_id: int, network: Any, clock: Any,
+    def __init__(self, name: str, eds: str, node_id: int, bus: Any,
                  params: EncoderParams | None = None, **kw: Any) -> None:
-        super().__init__(name, eds, node_id, network, clock, **kw)
+        super().__init__(name, eds, node_id, bus, **kw)
+        clock = self.clock
         self.params = params or EncoderParams()
         self.profile = SpeedProfile(self.params.profile)
         self.noise_counts = self.params.noise_counts

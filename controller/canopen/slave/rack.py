@@ -1,8 +1,8 @@
 """All simulated devices of a bus on one python-can bus (one participant of the bus).
 
-The devices share one python canopen ``Network`` (no Notifier thread): the rack hands every
-received frame to ``Network.notify`` itself, so the same rack runs in a stepped world
-(:class:`~controller.canopen.io.transport.SteppedWorld` drains it) or in real time
+The devices (slave-node engines) share one :class:`~controller.canopen.io.transport.Port` (no
+Notifier thread): the rack hands every received frame to it, so the same rack runs in a
+stepped world (:class:`~controller.canopen.io.transport.SteppedWorld` drains it) or in real time
 (:class:`~controller.canopen.io.transport.DeviceThread`).  Frames are stamped with the rack's
 clock (message time).  The devices do not hear each other's frames (one bus object), which
 none of them needs.
@@ -14,10 +14,10 @@ from collections.abc import Iterable
 from typing import TYPE_CHECKING
 
 import can
-import canopen
 
 from ..config.simulation import DriveParams, EncoderParams
 from ..io.clock import Clock
+from ..io.transport import Port
 from ..protocol import od as odm
 from .drive import SimDrive
 from .encoder import SimEncoder
@@ -27,25 +27,13 @@ if TYPE_CHECKING:
     from ..config import BusConfig
 
 
-class SimNetwork(canopen.Network):
-    """A canopen Network whose sends carry the simulation clock's timestamps."""
-
-    def __init__(self, bus: can.BusABC, clock: Clock) -> None:
-        super().__init__(bus)
-        self.clock = clock
-
-    def send_message(self, can_id: int, data: bytes, remote: bool = False) -> None:
-        self.bus.send(can.Message(arbitration_id=can_id, data=bytes(data), is_extended_id=False,
-                                  is_remote_frame=remote, timestamp=self.clock.stamp()))
-
-
 class DeviceRack:
     """Endpoint holding the simulated devices (``handle``/``next_timer_ns``/``on_timer``)."""
 
     def __init__(self, bus: can.BusABC, clock: Clock) -> None:
         self.bus = bus
         self.clock = clock
-        self.network = SimNetwork(bus, clock)
+        self.port = Port(bus, clock)  # frames stamped with the clock, dispatched by COB-ID
         self.devices: dict[str, SimNode] = {}
 
     def add(self, device: SimNode) -> SimNode:
@@ -56,9 +44,7 @@ class DeviceRack:
         return self.devices[name]
 
     def handle(self, msg: can.Message) -> None:
-        if msg.is_error_frame or msg.is_remote_frame or msg.is_extended_id:
-            return
-        self.network.notify(msg.arbitration_id, msg.data, msg.timestamp)
+        self.port.handle(msg)
 
     def next_timer_ns(self) -> int | None:
         due = [t for d in self.devices.values() if (t := d.next_timer_ns()) is not None]
@@ -87,16 +73,16 @@ class DeviceRack:
             prof = odm.profile(cfg.ods[name])
             params = sim.devices.get(name) if sim is not None else None
             if prof == odm.PROFILE_DRIVE:
-                rack.add(SimDrive(name, str(slave.dcf), slave.node_id, rack.network, clock,
+                rack.add(SimDrive(name, str(slave.dcf), slave.node_id, rack.port,
                                   params if isinstance(params, DriveParams) else None,
                                   boot_delay_ns=boot_delay))
             elif prof == odm.PROFILE_ENCODER:
                 if not isinstance(params, EncoderParams):
                     params = _default_encoder(cfg)
-                rack.add(SimEncoder(name, str(slave.dcf), slave.node_id, rack.network, clock,
+                rack.add(SimEncoder(name, str(slave.dcf), slave.node_id, rack.port,
                                     params, boot_delay_ns=boot_delay))
             else:
-                rack.add(SimNode(name, str(slave.dcf), slave.node_id, rack.network, clock,
+                rack.add(SimNode(name, str(slave.dcf), slave.node_id, rack.port,
                                  boot_delay_ns=boot_delay))
         return rack
 

@@ -1,0 +1,880 @@
+"""The one CiA 301 slave-node engine: object dictionary, NMT slave, heartbeat producer and
+consumer, SDO server (expedited and segmented), PDOs, EMCY.
+
+Every CANopen node cantrack plays uses it: the simulated drive and encoder
+(:mod:`.node` adds fault injection, :mod:`.drive`/:mod:`.encoder` the device models) and the
+controller's own node for a PLC (:mod:`.plc`).  The engine owns no thread and no bus: it
+sits on a :class:`SlaveBus` (``send``/``subscribe``/``unsubscribe`` + ``clock``: the
+controller's transport or a device rack's port) and its host calls :meth:`SlaveEngine.on_timer`
+when :meth:`SlaveEngine.next_timer_ns` falls due (the rack's timers; the controller's cycle).
+
+What python canopen gives and what is added here, and why:
+
+- storage and the SDO protocol are python canopen's ``LocalNode`` and ``SdoServer``
+  (expedited and segmented upload/download; block transfers are refused, 05040001h).  Only
+  public API is used: :class:`_OdNode` overrides ``LocalNode.get_data``/``set_data`` (the two
+  calls the server makes), so the engine's checks run on every SDO access and canopen's
+  ``NmtSlave`` (which would start a python-can periodic heartbeat thread on a 1017h write) is
+  never called; :class:`_SdoServer` overrides ``on_request``/``send_response`` to answer on
+  the engine's bus, to refuse a segmented download at its first frame (not after the last
+  segment), and to answer a segment that belongs to no transfer with 05040001h (canopen
+  would fail on its empty buffer);
+- checks on every SDO write (CiA 301 / CANopenNode's rules): access (06010002h), length
+  (06070010h), EDS LowLimit/HighLimit (06090030h), COB-IDs of PDOs and EMCY (bits 11-29 set,
+  a restricted CAN-ID, a changed CAN-ID while the PDO is valid, a valid PDO without mapping:
+  06090030h; an ID that :meth:`SlaveEngine.cob_id_conflict` names: 08000000h), PDO
+  transmission types 241-253 (06090030h: no RTR), mapping writes only while the PDO is
+  invalid and its sub 0 is 0 (06040043h), mappable objects of the right size (06040041h),
+  at most 64 bits (06040042h);
+- NMT slave: power-on / reset node / reset communication -> boot-up message after
+  ``boot_delay_ns`` -> PRE-OPERATIONAL; start, stop, enter pre-operational.  Reset node
+  restores every object to its EDS default, reset communication 1000h-1FFFh only.  SDO is
+  served in PRE-OPERATIONAL and OPERATIONAL, PDOs only in OPERATIONAL;
+- heartbeat producer (1017h ms) on the engine's clock; consumer (1016h entries
+  ``node-ID << 16 | ms``): a producer is *present* from its first heartbeat until one is
+  overdue (:meth:`on_heartbeat_lost`, :meth:`on_heartbeat_back`);
+- PDOs from 1400h-1BFFh as configured: RPDOs of types 0-240 are applied at the next SYNC,
+  254/255 at once; TPDOs of type 0 go out at a SYNC when a mapped object changed since the
+  last one, 1-240 at every n-th SYNC (from the SYNC counter = 18xxh:6 when both are set),
+  254/255 on a change (inhibit time 18xxh:3 respected) and on the event timer 18xxh:5;
+- EMCY producer with 1001h/1003h bookkeeping.
+
+Subclasses implement the hooks at the end of :class:`SlaveEngine`.
+"""
+
+from __future__ import annotations
+
+import struct
+from collections.abc import Callable
+from dataclasses import dataclass
+from enum import IntEnum
+from pathlib import Path
+from typing import Any, Protocol
+
+from canopen import LocalNode
+from canopen.objectdictionary import (
+    NUMBER_TYPES,
+    REAL32,
+    REAL64,
+    ObjectDictionary,
+    ODVariable,
+)
+from canopen.sdo import SdoAbortedError, SdoServer
+
+from ..io.clock import Clock
+from ..protocol import od as odm
+from ..protocol.pdo import INVALID
+from ..protocol.sdo import (
+    ABORT_COMMAND,
+    ABORT_GENERAL,
+    ABORT_LENGTH,
+    ABORT_NO_OBJECT,
+    ABORT_NO_SUB,
+    ABORT_PARAM_INCOMPATIBLE,
+    ABORT_PDO_LENGTH,
+    ABORT_PDO_MAPPING,
+    ABORT_READ_ONLY,
+    ABORT_VALUE_RANGE,
+    ABORT_WRITE_ONLY,
+    SdoAbortError,
+)
+
+#: CiA 301 "data cannot be transferred or stored because of local control" (the node is
+#: not under its commander's control)
+ABORT_LOCAL_CONTROL = 0x08000021
+
+#: CiA 301 EMCY: unexpected SYNC data length (the counter against 1019h)
+EMCY_SYNC_LENGTH = 0x8240
+
+#: COB-ID bits 11-29 must be 0 (11-bit identifiers only; bit 30 is RTR/"no RTR" for PDOs)
+COB_ID_RESERVED_BITS = 0x3FFFF800
+
+
+class Nmt(IntEnum):
+    """NMT states (the heartbeat byte, CiA 301 table 59)."""
+
+    INITIALISING = 0
+    STOPPED = 4
+    OPERATIONAL = 5
+    PRE_OPERATIONAL = 127
+
+
+def restricted_can_id(can_id: int) -> bool:
+    """CiA 301 restricted CAN-IDs (not for SYNC, TIME, EMCY, PDO, SDO): 000h-07Fh,
+    101h-180h, 581h-5FFh, 601h-67Fh, 6E0h-6FFh, 701h-7FFh (CANopenNode's
+    ``CO_IS_RESTRICTED_CAN_ID``)."""
+    return (can_id <= 0x7F or 0x101 <= can_id <= 0x180 or 0x581 <= can_id <= 0x5FF
+            or 0x601 <= can_id <= 0x67F or 0x6E0 <= can_id <= 0x6FF or can_id >= 0x701)
+
+
+Receiver = Callable[[int, bytes, int], None]
+
+
+class SlaveBus(Protocol):
+    """What the engine needs of its bus (a transport, a port)."""
+
+    clock: Clock
+
+    def send(self, can_id: int, data: bytes | bytearray) -> None: ...
+
+    def subscribe(self, can_id: int, callback: Receiver) -> None: ...
+
+    def unsubscribe(self, can_id: int, callback: Receiver | None = None) -> None: ...
+
+
+@dataclass
+class PdoChannel:
+    """One PDO of the node as its communication and mapping objects configure it."""
+
+    kind: str  # "rpdo" | "tpdo"
+    number: int  # 1-based
+    cob_id: int
+    transmission: int
+    inhibit_ns: int
+    event_ns: int
+    sync_start: int
+    mapping: list[tuple[int, int, int]]
+    objects: frozenset[tuple[int, int]] = frozenset()
+    pending: bytes | None = None  # RPDO data waiting for the next SYNC
+    last_data: bytes | None = None  # TPDO: last sent data
+    last_sent_ns: int | None = None
+    sync_count: int = 0
+    started: bool = True  # TPDO with a SYNC start value: False until the counter matches
+    dirty: bool = True  # TPDO: a mapped object changed since the last send
+    sent: int = 0
+
+
+@dataclass
+class _Consumer:
+    producer: int
+    timeout_ns: int
+    last_ns: int | None = None
+    lost: bool = False
+    state: int | None = None  # the producer's NMT state in its last heartbeat
+
+
+class _OdNode(LocalNode):
+    """python canopen's LocalNode whose two data calls go through the engine."""
+
+    def __init__(self, engine: SlaveEngine, node_id: int, od: ObjectDictionary) -> None:
+        super().__init__(node_id, od)
+        self.engine = engine
+
+    def get_data(self, index: int, subindex: int, check_readable: bool = False) -> bytes:
+        return self.engine._sdo_read(index, subindex, check_readable)
+
+    def set_data(self, index: int, subindex: int, data: bytes,
+                 check_writable: bool = False) -> None:
+        self.engine._sdo_write(index, subindex, bytes(data), check_writable)
+
+
+class _SdoServer(SdoServer):
+    """canopen's SDO server on the engine's bus (see the module docstring)."""
+
+    def __init__(self, engine: SlaveEngine, node: _OdNode) -> None:
+        super().__init__(0x600 + engine.node_id, 0x580 + engine.node_id, node)
+        self.engine = engine
+        #: the transfer in progress: ("up" | "down", index, sub, bytes left to upload)
+        self.transfer: tuple[str, int, int, int] | None = None
+
+    def send_response(self, response: bytes | bytearray) -> None:
+        self.engine._send("sdo", self.tx_cobid, bytes(response))
+
+    def _abort_with(self, index: int, sub: int, code: int) -> None:
+        self.transfer = None
+        self.send_response(struct.pack("<BHBI", 0x80, index, sub, code))
+
+    def on_request(self, can_id: int, data: bytes, timestamp: Any) -> None:
+        if len(data) != 8:
+            # CiA 301: SDO frames have 8 bytes (canopen's server would fail in its unpack):
+            # abort 05040001h, naming what index/sub-index bytes there are
+            head = bytes(data[1:4]).ljust(3, b"\0")
+            self.transfer = None
+            self.send_response(b"\x80" + head + ABORT_COMMAND.to_bytes(4, "little"))
+            return
+        cmd = data[0]
+        ccs = cmd >> 5
+        if ccs == 4:  # the client aborts
+            self.transfer = None
+            return
+        if ccs in (1, 2, 5, 6):
+            index, sub = struct.unpack_from("<HB", data, 1)
+            self.transfer = None
+            try:
+                if ccs in (5, 6):
+                    raise SdoAbortError(ABORT_COMMAND)  # block transfer: not supported
+                if ccs == 1 and not cmd & 0x02:  # segmented download: check it now
+                    self.engine._check_write_access(index, sub)
+                    self.transfer = ("down", index, sub, 0)
+                elif ccs == 2:
+                    size = len(self.engine._sdo_read(index, sub, True))
+                    if size > 4:
+                        self.transfer = ("up", index, sub, size)
+            except SdoAbortError as exc:
+                self._abort_with(index, sub, exc.code)
+                return
+        elif ccs in (0, 3):
+            t = self.transfer
+            if t is None or t[0] != ("down" if ccs == 0 else "up"):
+                self._abort_with(t[1] if t else 0, t[2] if t else 0, ABORT_COMMAND)
+                return
+            if ccs == 3:
+                left = t[3] - 7
+                self.transfer = (t[0], t[1], t[2], left) if left > 0 else None
+            elif cmd & 0x01:  # the last segment of a download
+                self.transfer = None
+        else:
+            self._abort_with(0, 0, ABORT_COMMAND)
+            return
+        super().on_request(can_id, data, timestamp)
+
+
+class SlaveEngine:
+    """One CANopen slave node (see the module docstring)."""
+
+    kind = "node"
+
+    def __init__(self, name: str, eds: str | Path | ObjectDictionary, node_id: int,
+                 bus: SlaveBus, *, boot_delay_ns: int = 5_000_000,
+                 heartbeat_producer: bool = True, sync_cob_id: int | None = 0x80) -> None:
+        self.name = name
+        self.node_id = int(node_id)
+        self.bus = bus
+        self.clock: Clock = bus.clock
+        self.od = eds if isinstance(eds, ObjectDictionary) else odm.load_od(eds, node_id)
+        self.heartbeat_producer = heartbeat_producer
+        self._vars: dict[tuple[int, int], ODVariable] = {}
+        self._codecs: dict[tuple[int, int], tuple[struct.Struct | None, ODVariable]] = {}
+        self._changed: set[tuple[int, int]] = set()  # objects changed since the last service
+        self.node = _OdNode(self, self.node_id, self.od)
+        self.sdo = _SdoServer(self, self.node)
+        self.node.sdo = self.sdo
+        self.boot_delay_ns = int(boot_delay_ns)
+        self.nmt_state = Nmt.INITIALISING
+        self._boot_at: int | None = self.clock.now_ns() + self.boot_delay_ns
+        self._hb_next: int | None = None
+        self._consumers: dict[int, _Consumer] = {}
+        self.rpdos: dict[int, PdoChannel] = {}
+        self.tpdos: list[PdoChannel] = []
+        self._pdo_dirty = True
+        self.emcy_sent: list[tuple[int, int]] = []  # (code, ns)
+        self.sync_counter: int | None = None
+        self.sync_cob_id = sync_cob_id
+        bus.subscribe(0x600 + self.node_id, self._on_sdo_frame)
+        bus.subscribe(0x000, self._on_nmt)
+        if sync_cob_id is not None:
+            bus.subscribe(sync_cob_id, self._on_sync_frame)
+
+    # -- object dictionary access -------------------------------------------------------
+    def var(self, index: int, sub: int = 0) -> ODVariable:
+        key = (index, sub)
+        v = self._vars.get(key)
+        if v is None:
+            v = odm.variable(self.od, index, sub)
+            if v is None:
+                raise KeyError(f"{self.name}: no object {index:04X}h:{sub:02X}")
+            self._vars[key] = v
+        return v
+
+    def has(self, index: int, sub: int = 0) -> bool:
+        return odm.variable(self.od, index, sub) is not None
+
+    def _codec(self, index: int, sub: int) -> tuple[struct.Struct | None, ODVariable]:
+        key = (index, sub)
+        c = self._codecs.get(key)
+        if c is None:
+            v = self.var(index, sub)
+            fmt = odm.STRUCT_FORMAT.get(v.data_type)
+            c = (struct.Struct("<" + fmt) if fmt else None, v)
+            self._codecs[key] = c
+        return c
+
+    def encode(self, index: int, sub: int, value: Any) -> bytes:
+        st, v = self._codec(index, sub)
+        if st is None:
+            return v.encode_raw(value)
+        if v.data_type not in (REAL32, REAL64):
+            value = int(value)
+        return st.pack(value)
+
+    def decode(self, index: int, sub: int, raw: bytes) -> Any:
+        st, v = self._codec(index, sub)
+        return st.unpack(raw)[0] if st is not None else v.decode_raw(raw)
+
+    def store(self, index: int, sub: int, value: Any) -> None:
+        """Set an object's value from the application (no SDO checks, no callbacks)."""
+        raw = self.encode(index, sub, value)
+        d = self.node.data_store.setdefault(index, {})
+        if d.get(sub) != raw:
+            d[sub] = raw
+            self._changed.add((index, sub))
+
+    def raw(self, index: int, sub: int = 0) -> bytes:
+        """An object's current value as bytes (stored, else the EDS default)."""
+        d = self.node.data_store.get(index)
+        raw = d.get(sub) if d is not None else None
+        if raw is not None:
+            return raw
+        v = self.var(index, sub)
+        value = odm.default_value(v)
+        if value is None:
+            return bytes(odm.size_bytes(v)) if v.data_type in NUMBER_TYPES else b""
+        return self.encode(index, sub, value)
+
+    def load(self, index: int, sub: int = 0) -> Any:
+        """An object's current value (stored, else EDS default; REAL32 hex defaults too)."""
+        d = self.node.data_store.get(index)
+        raw = d.get(sub) if d is not None else None
+        if raw is None:
+            value = odm.default_value(self.var(index, sub))
+            return 0 if value is None else value
+        return self.decode(index, sub, raw)
+
+    # -- SDO server side --------------------------------------------------------------------
+    def _find(self, index: int, sub: int) -> ODVariable:
+        v = odm.variable(self.od, index, sub)
+        if v is None:
+            raise SdoAbortError(ABORT_NO_SUB if index in self.od else ABORT_NO_OBJECT)
+        return v
+
+    def _sdo_read(self, index: int, sub: int, check_readable: bool) -> bytes:
+        v = self._find(index, sub)
+        if check_readable and not v.readable:
+            raise SdoAbortError(ABORT_WRITE_ONLY)
+        self.check_read(index, sub)
+        return self.raw(index, sub)
+
+    def _check_write_access(self, index: int, sub: int) -> ODVariable:
+        """The checks of a write that need no value (also at a segmented download's start)."""
+        v = self._find(index, sub)
+        if not v.writable:
+            raise SdoAbortError(ABORT_READ_ONLY)
+        self.check_access(index, sub)
+        return v
+
+    def _sdo_write(self, index: int, sub: int, data: bytes, check_writable: bool) -> None:
+        v = self._check_write_access(index, sub) if check_writable else self._find(index, sub)
+        if v.data_type in NUMBER_TYPES and 8 * len(data) != len(v):
+            raise SdoAbortError(ABORT_LENGTH)
+        value = self.decode(index, sub, data) if v.data_type in NUMBER_TYPES else data
+        self._check_range(v, value)
+        if 0x1000 <= index <= 0x1FFF:
+            self._check_comm_write(index, sub, value)
+        self.on_write(index, sub, value)
+        store = self.node.data_store.setdefault(index, {})
+        if store.get(sub) != data:
+            store[sub] = data
+            self._changed.add((index, sub))
+        self._after_comm_write(index, sub, value)
+
+    @staticmethod
+    def _check_range(v: ODVariable, value: Any) -> None:
+        if v.data_type in (REAL32, REAL64):
+            if value != value:  # NaN
+                raise SdoAbortError(ABORT_VALUE_RANGE)
+            return
+        if not isinstance(value, int):
+            return
+        lo, hi = v.min, v.max
+        if (lo is not None and value < lo) or (hi is not None and value > hi):
+            raise SdoAbortError(ABORT_VALUE_RANGE)
+
+    def _check_comm_write(self, index: int, sub: int, value: Any) -> None:
+        if (0x1400 <= index <= 0x15FF or 0x1800 <= index <= 0x19FF):
+            kind = "rpdo" if index < 0x1800 else "tpdo"
+            if sub == 1:
+                self._check_pdo_cob_id(kind, index, int(value))
+            elif sub == 2 and 241 <= int(value) <= 253:
+                raise SdoAbortError(ABORT_VALUE_RANGE)  # (no RTR: as CANopenNode)
+            elif sub == 6 and kind == "tpdo" and (int(value) > 240
+                                                  or not int(self.load(index, 1)) & INVALID):
+                raise SdoAbortError(ABORT_VALUE_RANGE)  # (CANopenNode: while invalid)
+        elif 0x1600 <= index <= 0x17FF or 0x1A00 <= index <= 0x1BFF:
+            self._check_pdo_mapping(index, sub, int(value))
+        elif index == 0x1014 and sub == 0:
+            can_id = int(value) & 0x7FF
+            if int(value) & 0x7FFFF800 or (not int(value) & INVALID and can_id != 0x80
+                                          + self.node_id and restricted_can_id(can_id)):
+                raise SdoAbortError(ABORT_VALUE_RANGE)
+
+    def _check_pdo_cob_id(self, kind: str, comm: int, value: int) -> None:
+        """CANopenNode's OD_write_14xx/18xx rules, then :meth:`cob_id_conflict`."""
+        can_id = value & 0x7FF
+        valid = not value & INVALID
+        old = int(self.load(comm, 1))
+        old_valid = not old & INVALID
+        mapped = int(self.load(comm + 0x200, 0)) if self.has(comm + 0x200, 0) else 0
+        if value & COB_ID_RESERVED_BITS or (valid and old_valid and can_id != old & 0x7FF) \
+                or (valid and restricted_can_id(can_id)) or (valid and mapped == 0):
+            raise SdoAbortError(ABORT_VALUE_RANGE)
+        if valid and self.cob_id_conflict(kind, comm - (0x1400 if kind == "rpdo" else 0x1800)
+                                          + 1, can_id) is not None:
+            raise SdoAbortError(ABORT_GENERAL)
+
+    def _check_pdo_mapping(self, index: int, sub: int, value: int) -> None:
+        """CiA 301: a mapping is changed while its PDO is invalid and its sub 0 is 0."""
+        comm = index - 0x200
+        if not int(self.load(comm, 1)) & INVALID:
+            raise SdoAbortError(ABORT_PARAM_INCOMPATIBLE)
+        if sub == 0:
+            total = 0
+            for i in range(1, value + 1):
+                if not self.has(index, i):
+                    raise SdoAbortError(ABORT_PDO_MAPPING)
+                total += int(self.load(index, i)) & 0xFF
+            if total > 64:
+                raise SdoAbortError(ABORT_PDO_LENGTH)
+            return
+        if int(self.load(index, 0)) != 0:
+            raise SdoAbortError(ABORT_PARAM_INCOMPATIBLE)
+        obj, osub, bits = value >> 16, (value >> 8) & 0xFF, value & 0xFF
+        if obj < 0x1000:
+            return  # a dummy entry
+        v = odm.variable(self.od, obj, osub)
+        if v is None or not v.pdo_mappable or len(v) != bits:
+            raise SdoAbortError(ABORT_PDO_MAPPING)
+
+    def _after_comm_write(self, index: int, sub: int, value: Any) -> None:
+        if 0x1400 <= index <= 0x1BFF:
+            self._pdo_dirty = True
+        elif index == 0x1017:
+            ms = int(value)
+            now = self.clock.now_ns()
+            self._hb_next = now + ms * 1_000_000 if ms and self.nmt_state else None
+        elif index == 0x1016:
+            self._load_consumers()
+
+    # -- sending ------------------------------------------------------------------------------
+    def _send(self, kind: str, can_id: int, data: bytes) -> None:
+        """Every frame of the node goes out here (``kind``: nmt, hb, sdo, pdo, emcy)."""
+        if self.may_send(kind):
+            self.bus.send(can_id, data)
+
+    def send_emcy(self, code: int, register: int | None = None, data: bytes = b"") -> None:
+        """Send an EMCY (error code ``code``), updating 1001h and 1003h."""
+        if register is None:
+            register = 0 if code == 0 else (0x01 | (0x80 if code >> 12 in (8, 15) else 0))
+        self.store(0x1001, 0, register)
+        if code != 0 and 0x1003 in self.od:
+            n = int(self.load(0x1003, 0))
+            depth = max(s for s in self.od[0x1003].subindices)
+            history = [int(self.load(0x1003, i)) for i in range(1, min(n, depth) + 1)]
+            history = [code] + history[: depth - 1]
+            for i, value in enumerate(history, start=1):
+                self.store(0x1003, i, value)
+            self.store(0x1003, 0, len(history))
+        if self.nmt_state in (Nmt.PRE_OPERATIONAL, Nmt.OPERATIONAL):
+            cob = int(self.load(0x1014, 0)) if self.has(0x1014) else 0x80 + self.node_id
+            if not cob & INVALID:
+                payload = struct.pack("<HB5s", code, register, bytes(data)[:5])
+                self._send("emcy", cob & 0x7FF, payload)
+        self.emcy_sent.append((code, self.clock.now_ns()))
+
+    # -- NMT ----------------------------------------------------------------------------------
+    def _on_sdo_frame(self, can_id: int, data: bytes, t: Any) -> None:
+        if self.listening() and self.nmt_state in (Nmt.PRE_OPERATIONAL, Nmt.OPERATIONAL):
+            self.sdo.on_request(can_id, data, t)
+
+    def _on_nmt(self, can_id: int, data: bytes, t: Any) -> None:
+        if not self.listening() or len(data) < 2:
+            return
+        cmd, target = data[0], data[1]
+        if target not in (0, self.node_id):
+            return
+        if self.nmt_state is Nmt.INITIALISING and cmd not in (0x81, 0x82):
+            return
+        if cmd == 0x01:
+            if self.accept_start():
+                self.set_nmt(Nmt.OPERATIONAL)
+        elif cmd == 0x02:
+            self.set_nmt(Nmt.STOPPED)
+        elif cmd == 0x80:
+            self.set_nmt(Nmt.PRE_OPERATIONAL)
+        elif cmd in (0x81, 0x82):
+            self.reset(application=cmd == 0x81)
+
+    def set_nmt(self, state: Nmt) -> None:
+        """Enter an NMT state (a command received, or the node's own decision)."""
+        if state == self.nmt_state:
+            return
+        old = self.nmt_state
+        self.nmt_state = state
+        if state is Nmt.OPERATIONAL:
+            self._rebuild_pdos()
+            for p in self.tpdos:
+                p.sync_count = 0
+                p.last_data = None
+                p.started = not p.sync_start
+        self.on_nmt(old, state)
+
+    def reset(self, application: bool) -> None:
+        """NMT reset node (``application``) or reset communication."""
+        store = self.node.data_store
+        for index in list(store):
+            if application or 0x1000 <= index <= 0x1FFF:
+                del store[index]
+        old = self.nmt_state
+        self.nmt_state = Nmt.INITIALISING
+        self._hb_next = None
+        for producer in list(self._consumers):
+            self.bus.unsubscribe(0x700 + producer, self._on_heartbeat)
+        self._consumers.clear()
+        self._pdo_dirty = True
+        for p in self.rpdos.values():
+            self.bus.unsubscribe(p.cob_id, self._on_rpdo)
+        self.rpdos.clear()
+        self.tpdos.clear()
+        self.sync_counter = None
+        self.on_comm_reset()
+        if application:
+            self.on_reset()
+        self._boot_at = self.clock.now_ns() + self.boot_delay_ns
+        self.on_nmt(old, Nmt.INITIALISING)
+
+    def boot_now(self, send_boot_up: bool = True) -> None:
+        """End the initialisation at once (the host node's own start-up)."""
+        self._boot_up(self.clock.now_ns(), send_boot_up)
+
+    def _boot_up(self, now: int, send_boot_up: bool = True) -> None:
+        self._boot_at = None
+        old = self.nmt_state
+        self.nmt_state = Nmt.PRE_OPERATIONAL
+        if send_boot_up:
+            self._send("nmt", 0x700 + self.node_id, b"\x00")
+        self._schedule_heartbeat(now)
+        self._load_consumers()
+        self._rebuild_pdos()
+        self.on_nmt(old, Nmt.PRE_OPERATIONAL)
+
+    def _schedule_heartbeat(self, now: int) -> None:
+        ms = int(self.load(0x1017, 0)) if self.heartbeat_producer and self.has(0x1017) else 0
+        self._hb_next = now + ms * 1_000_000 if ms > 0 else None
+
+    # -- heartbeat consumer ---------------------------------------------------------------------
+    def _load_consumers(self) -> None:
+        for producer in list(self._consumers):
+            self.bus.unsubscribe(0x700 + producer, self._on_heartbeat)
+        old = self._consumers
+        self._consumers = {}
+        if 0x1016 not in self.od:
+            return
+        for sub in self.od[0x1016].subindices:
+            if sub == 0:
+                continue
+            value = int(self.load(0x1016, sub))
+            producer, ms = (value >> 16) & 0xFF, value & 0xFFFF
+            if 1 <= producer <= 127 and ms:
+                c = _Consumer(producer, ms * 1_000_000)
+                prev = old.get(producer)
+                if prev is not None:  # (a changed time keeps what was seen)
+                    c.last_ns, c.lost, c.state = prev.last_ns, prev.lost, prev.state
+                self._consumers[producer] = c
+                self.bus.subscribe(0x700 + producer, self._on_heartbeat)
+
+    def _on_heartbeat(self, can_id: int, data: bytes, t: Any) -> None:
+        c = self._consumers.get(can_id - 0x700)
+        if c is None or not self.listening() or not data:
+            return
+        back = c.lost
+        c.last_ns = self.clock.now_ns()
+        c.state = data[0]
+        c.lost = False
+        if back:
+            self.on_heartbeat_back(c.producer)
+
+    def heartbeat_present(self, producer: int) -> bool:
+        """A consumed producer (1016h) has been heard and its heartbeat is not overdue."""
+        c = self._consumers.get(producer)
+        if c is None or c.last_ns is None or c.lost:
+            return False
+        return self.clock.now_ns() < c.last_ns + c.timeout_ns
+
+    def consumed(self, producer: int) -> int | None:
+        """The consumer heartbeat time [ns] of ``producer`` (1016h), None if not consumed."""
+        c = self._consumers.get(producer)
+        return c.timeout_ns if c is not None else None
+
+    # -- PDOs -------------------------------------------------------------------------------------
+    def _rebuild_pdos(self) -> None:
+        for pdo in self.rpdos.values():
+            self.bus.unsubscribe(pdo.cob_id, self._on_rpdo)
+        old = {p.number: p for p in self.tpdos}
+        self.rpdos = {}
+        self.tpdos = []
+        for comm in range(0x1400, 0x1600):
+            if comm in self.od:
+                p = self._read_pdo("rpdo", comm)
+                if p is not None:
+                    self.rpdos[p.cob_id] = p
+                    self.bus.subscribe(p.cob_id, self._on_rpdo)
+        for comm in range(0x1800, 0x1A00):
+            if comm in self.od:
+                p = self._read_pdo("tpdo", comm)
+                if p is not None:
+                    prev = old.get(p.number)
+                    if prev is not None and prev.cob_id == p.cob_id:
+                        p.last_sent_ns, p.last_data, p.sent = \
+                            prev.last_sent_ns, prev.last_data, prev.sent
+                        p.sync_count, p.started = prev.sync_count, prev.started
+                    self.tpdos.append(p)
+        self._pdo_dirty = False
+
+    def _read_pdo(self, kind: str, comm: int) -> PdoChannel | None:
+        if int(self.load(comm, 1)) & INVALID:
+            return None
+        n = int(self.load(comm + 0x200, 0)) if self.has(comm + 0x200, 0) else 0
+        mapping = []
+        for i in range(1, n + 1):
+            v = int(self.load(comm + 0x200, i))
+            mapping.append((v >> 16, (v >> 8) & 0xFF, v & 0xFF))
+        if not mapping:
+            return None
+        tpdo = kind == "tpdo"
+        inhibit = int(self.load(comm, 3)) * 100_000 if tpdo and self.has(comm, 3) else 0
+        event = int(self.load(comm, 5)) * 1_000_000 if tpdo and self.has(comm, 5) else 0
+        start = int(self.load(comm, 6)) if tpdo and self.has(comm, 6) else 0
+        return PdoChannel(kind, comm - (0x1800 if tpdo else 0x1400) + 1,
+                          int(self.load(comm, 1)) & 0x7FF, int(self.load(comm, 2)), inhibit,
+                          event, start, mapping,
+                          objects=frozenset((i, s) for i, s, _ in mapping if i >= 0x1000),
+                          started=not start)
+
+    def _on_rpdo(self, can_id: int, data: bytes, t: Any) -> None:
+        if not self.listening() or self.nmt_state is not Nmt.OPERATIONAL:
+            return
+        pdo = self.rpdos.get(can_id)
+        if pdo is None:
+            return
+        if pdo.transmission <= 240:
+            pdo.pending = bytes(data)
+        else:
+            self._apply_rpdo(pdo, bytes(data))
+
+    def _apply_rpdo(self, pdo: PdoChannel, data: bytes) -> None:
+        need = sum(bits for _, _, bits in pdo.mapping) // 8
+        if len(data) < need:
+            return  # (CiA 301: a too short PDO is not processed; EMCY 8210h in real nodes)
+        values: list[tuple[int, int, bytes]] = []
+        offset = 0
+        for index, sub, bits in pdo.mapping:
+            n = bits // 8
+            if index >= 0x1000:
+                values.append((index, sub, data[offset:offset + n]))
+            offset += n
+        accepted = self.on_rpdo_data(pdo.number, values)
+        store = self.node.data_store
+        for index, sub, raw in accepted:
+            d = store.setdefault(index, {})
+            if d.get(sub) != raw:
+                d[sub] = raw
+                self._changed.add((index, sub))
+        self.on_rpdo(pdo.number, pdo.objects)
+
+    def tpdo_data(self, pdo: PdoChannel) -> bytes:
+        out = bytearray()
+        for index, sub, bits in pdo.mapping:
+            out += self.raw(index, sub) if index >= 0x1000 else bytes(bits // 8)
+        return bytes(out)
+
+    def _send_tpdo(self, pdo: PdoChannel, data: bytes, now: int) -> None:
+        self._send("pdo", pdo.cob_id, data)
+        pdo.last_data = data
+        pdo.last_sent_ns = now
+        pdo.sent += 1
+        pdo.dirty = False
+
+    def _on_sync_frame(self, can_id: int, data: bytes, t: Any) -> None:
+        if not self.listening():
+            return
+        if not self._sync_length_ok(len(data)):
+            self.sync_counter = data[0] if data else None
+            return
+        self.process_sync(data[0] if data else None)
+
+    def _sync_length_ok(self, n: int) -> bool:
+        """CiA 301: with 1019h > 0 a SYNC carries the counter (1 byte), else none; a consumer
+        that gets another length sends EMCY 8240h (unexpected SYNC data length) and, as
+        CANopenNode does, enters pre-operational.  (Objects without 1019h: not checked.)"""
+        if not self.has(0x1019):
+            return True
+        want = 1 if int(self.load(0x1019, 0)) else 0
+        if n == want:
+            return True
+        if self.nmt_state is Nmt.OPERATIONAL:
+            self.send_emcy(EMCY_SYNC_LENGTH)
+            self.set_nmt(Nmt.PRE_OPERATIONAL)
+        return False
+
+    def process_sync(self, counter: int | None = None) -> None:
+        """A SYNC (received, or the host's own): synchronous RPDOs into the OD, the
+        device's :meth:`on_sync`, then the synchronous and event TPDOs."""
+        if not self.listening() or self.nmt_state in (Nmt.INITIALISING, Nmt.STOPPED):
+            return
+        if self._pdo_dirty:
+            self._rebuild_pdos()
+        self.sync_counter = counter
+        now = self.clock.now_ns()
+        operational = self.nmt_state is Nmt.OPERATIONAL
+        if operational:
+            for pdo in self.rpdos.values():
+                if pdo.pending is not None:
+                    data, pdo.pending = pdo.pending, None
+                    self._apply_rpdo(pdo, data)
+        self.on_sync(now)
+        if not operational:
+            self._changed.clear()
+            return
+        changed = self._changed
+        for pdo in self.tpdos:
+            t = pdo.transmission
+            if t > 240:
+                continue
+            if changed and not changed.isdisjoint(pdo.objects):
+                pdo.dirty = True
+            if not pdo.started:  # (CANopenNode: the first at the counter = 18xxh:6)
+                if counter is not None and counter != pdo.sync_start:
+                    continue
+                pdo.started = True
+                if counter is not None and t > 0:
+                    pdo.sync_count = 0
+                    self._send_tpdo(pdo, self.tpdo_data(pdo), now)
+                    continue
+            if t == 0:  # acyclic synchronous: at the SYNC after a change
+                if pdo.dirty or pdo.last_data is None:
+                    data = self.tpdo_data(pdo)
+                    if data != pdo.last_data:
+                        self._send_tpdo(pdo, data, now)
+                    pdo.dirty = False
+                continue
+            pdo.sync_count += 1
+            if pdo.sync_count >= t:
+                pdo.sync_count = 0
+                self._send_tpdo(pdo, self.tpdo_data(pdo), now)
+        self.service_event_pdos(now)
+
+    def service_event_pdos(self, now: int) -> None:
+        """Send the event-driven TPDOs whose data changed or whose event timer expired."""
+        if self._pdo_dirty:
+            self._rebuild_pdos()
+        changed = self._changed
+        if self.nmt_state is not Nmt.OPERATIONAL or not self.may_send("pdo"):
+            changed.clear()
+            return
+        for pdo in self.tpdos:
+            if changed and not changed.isdisjoint(pdo.objects):
+                pdo.dirty = True
+            if pdo.transmission < 254:
+                continue
+            timer = bool(pdo.event_ns) and (pdo.last_sent_ns is None
+                                            or now - pdo.last_sent_ns >= pdo.event_ns)
+            if not (pdo.dirty or timer):
+                continue
+            if pdo.last_sent_ns is not None and now - pdo.last_sent_ns < pdo.inhibit_ns:
+                continue  # (a change waits for the inhibit time: sent at a later service)
+            data = self.tpdo_data(pdo)
+            pdo.dirty = False
+            if data != pdo.last_data or timer:
+                self._send_tpdo(pdo, data, now)
+        changed.clear()
+
+    # -- timers -----------------------------------------------------------------------------------
+    def next_timer_ns(self) -> int | None:
+        if not self.listening():
+            return None
+        due = [t for t in (self._boot_at, self._hb_next, self.device_timer_ns())
+               if t is not None]
+        for c in self._consumers.values():
+            if c.last_ns is not None and not c.lost:
+                due.append(c.last_ns + c.timeout_ns)
+        if self.nmt_state is Nmt.OPERATIONAL and self.may_send("pdo"):
+            for pdo in self.tpdos:
+                if pdo.transmission >= 254 and pdo.event_ns:
+                    base = pdo.last_sent_ns if pdo.last_sent_ns is not None else 0
+                    due.append(base + pdo.event_ns)
+        return min(due) if due else None
+
+    def on_timer(self, now: int) -> None:
+        if not self.listening():
+            return
+        if self._boot_at is not None and now >= self._boot_at:
+            self._boot_up(now)
+        if self._hb_next is not None and now >= self._hb_next:
+            self._send("hb", 0x700 + self.node_id, bytes([int(self.nmt_state)]))
+            self._schedule_heartbeat(now)
+        for c in list(self._consumers.values()):
+            if c.last_ns is not None and not c.lost and now >= c.last_ns + c.timeout_ns:
+                c.lost = True
+                self.on_heartbeat_lost(c.producer)
+        self.device_timer(now)
+        self.service_event_pdos(now)
+
+    def close(self) -> None:
+        """Leave the bus (unsubscribe everything)."""
+        self.bus.unsubscribe(0x600 + self.node_id, self._on_sdo_frame)
+        self.bus.unsubscribe(0x000, self._on_nmt)
+        if self.sync_cob_id is not None:
+            self.bus.unsubscribe(self.sync_cob_id, self._on_sync_frame)
+        for p in self.rpdos.values():
+            self.bus.unsubscribe(p.cob_id, self._on_rpdo)
+        for producer in self._consumers:
+            self.bus.unsubscribe(0x700 + producer, self._on_heartbeat)
+
+    # -- hooks for subclasses ---------------------------------------------------------------------
+    def accept_start(self) -> bool:
+        """NMT start received: False refuses it (a device that cannot start)."""
+        return True
+
+    def listening(self) -> bool:
+        """False: the node hears nothing and does nothing (a simulated power-off)."""
+        return True
+
+    def may_send(self, kind: str) -> bool:
+        """Whether a frame of ``kind`` (nmt, hb, sdo, pdo, emcy) may go out (fault injection)."""
+        return True
+
+    def check_read(self, index: int, sub: int) -> None:
+        """An SDO upload of ``index:sub`` (raise SdoAbortedError to refuse it)."""
+
+    def check_access(self, index: int, sub: int) -> None:
+        """An SDO download to ``index:sub`` starts (raise SdoAbortedError to refuse it)."""
+
+    def cob_id_conflict(self, kind: str, number: int, can_id: int) -> str | None:
+        """Why ``can_id`` may not be used by PDO ``number`` of ``kind`` (None: it may)."""
+        return None
+
+    def on_write(self, index: int, sub: int, value: Any) -> None:
+        """An SDO write (raise SdoAbortedError to refuse it; stored after this returns)."""
+
+    def on_rpdo_data(self, number: int, values: list[tuple[int, int, bytes]]
+                     ) -> list[tuple[int, int, bytes]]:
+        """RPDO ``number`` carries ``(index, sub, raw)``: return what is stored (a PDO
+        cannot be refused; a device drops what it does not accept)."""
+        return values
+
+    def on_sync(self, now_ns: int) -> None:
+        """A SYNC arrived (RPDOs of types 0-240 are already in the OD; TPDOs follow)."""
+
+    def on_rpdo(self, number: int, objects: frozenset[tuple[int, int]]) -> None:
+        """RPDO ``number`` (mapping ``objects``) was written into the OD."""
+
+    def on_comm_reset(self) -> None:
+        """NMT reset communication or reset node (after the objects were reset)."""
+
+    def on_reset(self) -> None:
+        """NMT reset node: back to the power-on state (the physical state stays)."""
+
+    def on_nmt(self, old: Nmt, new: Nmt) -> None:
+        """The NMT state changed."""
+
+    def on_heartbeat_lost(self, producer: int) -> None:
+        """A consumed heartbeat (1016h) timed out."""
+
+    def on_heartbeat_back(self, producer: int) -> None:
+        """A consumed heartbeat that had timed out is received again."""
+
+    def device_timer_ns(self) -> int | None:
+        return None
+
+    def device_timer(self, now_ns: int) -> None:
+        pass
+
