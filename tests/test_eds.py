@@ -105,6 +105,11 @@ PROFILE_OBJECTS = {
         (0x2006, 0): (UNSIGNED32, RO), (0x2007, 0): (REAL32, RO),
         (0x2008, 0): (REAL32, RO), (0x2010, 0): (UNSIGNED8, RO),
         (0x2010, 1): (REAL32, RW), (0x2010, 2): (REAL32, RW), (0x2010, 3): (REAL32, RW),
+        (0x2011, 0): (UNSIGNED8, RO), (0x2012, 0): (UNSIGNED32, RO),
+        (0x2013, 0): (UNSIGNED32, RO), (0x2020, 0): (UNSIGNED8, RO),
+        (0x2020, 1): (UNSIGNED8, RO), (0x2020, 2): (UNSIGNED8, RO),
+        (0x2020, 3): (UNSIGNED32, RO), (0x2020, 4): (UNSIGNED16, RO),
+        (0x2020, 5): (UNSIGNED8, RO),
     },
 }
 
@@ -257,7 +262,7 @@ BROKEN = {
                         "invalid entry in [2000]: Description"),
     "decimal-real": ("DefaultValue=0x447A0000", "DefaultValue=1000.0",
                      "invalid DefaultValue in [2010sub1]"),
-    "undefined-object": ("10=0x2010", "10=0x2011", "object 0x2011 not found"),
+    "undefined-object": ("10=0x2010", "10=0x2019", "object 0x2019 not found"),
 }
 
 

@@ -1,7 +1,9 @@
-"""The controller as a CANopen node for a PLC (controller/canopen/master/plc_node.py), in stepped
-time: a PLC (the project's SDO client on its own port of the same virtual bus) reads and
-writes the controller's objects during a run; the event-driven TPDOs on the bus decode (with
-python canopen's own PDO decoding of the EDS mapping) to the tracker's values."""
+"""The controller as a CANopen node for a PLC (the PLC node on the slave engine), in stepped
+time: a PLC (the project's SDO client on its own port of the same virtual bus, its heartbeat
+from a producer in the world: the commander of ``.plc``) reads and writes the controller's
+objects during a run; the event-driven TPDOs on the bus decode (with python canopen's own PDO
+decoding of the EDS mapping) to the tracker's values.  The contract's refusals:
+test_plc_contract.py."""
 
 from __future__ import annotations
 
@@ -18,7 +20,9 @@ from controller.canopen.config import load_bus_config
 from controller.canopen.io.transport import SteppedTransport
 from controller.canopen.master.app import ConveyorFollow
 from controller.canopen.master.cycle import Controller, Phase
-from controller.canopen.master.plc_node import EDS, PlcNode
+from controller.canopen.config.plc import PlcConfig
+from controller.canopen.master.plc_node import attach_plc_node
+from controller.canopen.slave.plc import EDS
 from controller.canopen.protocol import od as odm
 from controller.canopen.protocol.sdo import SdoAbortError, SdoClient
 from controller.canopen.slave.world import SimWorld
@@ -29,6 +33,34 @@ from controller.tracking import TrackState
 OFFSET = (420.0, 30.0, 0.0)
 ENGAGE = 20  # cycles after the start of tracking
 NODE = 1  # master.node_id of the test bus
+PLC = 0x20  # the commander
+
+
+class Heartbeat:
+    """The PLC's heartbeat (700h + PLC, OPERATIONAL) every 100 ms on the world's clock."""
+
+    def __init__(self, world) -> None:
+        self.bus = world.new_bus()
+        self.clock = world.clock
+        self._next = self.clock.now_ns()
+
+    def handle(self, msg) -> None:
+        pass
+
+    def next_timer_ns(self):
+        return self._next
+
+    def on_timer(self, now_ns: int) -> None:
+        import can
+        self.bus.send(can.Message(arbitration_id=0x700 + PLC, data=b"\x05",
+                                  is_extended_id=False, timestamp=self.clock.stamp()))
+        self._next = now_ns + 100_000_000
+
+
+def _plc(ctl, world, app=None):
+    """The PLC node with the test PLC as its commander (heartbeat in ``world``)."""
+    world.add(Heartbeat(world))
+    return attach_plc_node(ctl, app, PlcConfig(commander=PLC))
 
 
 def _pdo_decoder(cob_id: int = 0x180 + NODE):
@@ -63,7 +95,7 @@ def rig(tmp_path):
     world, ctl = stepped(cfg, app, record=True)
     seen: list[int] = []
     ctl.on_cycle = lambda c, rec: seen.append(rec.cycle)  # an existing callback: chained
-    plc = PlcNode(ctl)
+    plc = _plc(ctl, world.world)
     client = SdoClient(SteppedTransport(world.world), NODE, "plc", timeout_s=0.01)
     ctl.boot()
     ctl.start()
@@ -159,6 +191,7 @@ def test_tpdo1_content_inhibit_and_event_timer(rig):
     # two PLC triggers over SDO (rising edges of 2004h bit 0) -> item count 2
     for v in (1, 0, 1):
         client.download(0x2004, 0, bytes([v]))
+    ctl.step()  # (the status objects are this cycle's)
     assert plc.triggers == 2 and client.upload_uint(0x2003, 0) == 2
     _step(ctl, 200)
     frames = [(t, d) for t, cid, d in world.recorder.frames if cid == 0x180 + NODE]
@@ -224,7 +257,7 @@ def test_demo_plc_trigger_and_item_count(tmp_path):
     app = PickPlace(demo)
     with SimWorld(cfg, record=True) as world:
         ctl = Controller(cfg, world.transport, app)
-        PlcNode(ctl, app)
+        _plc(ctl, world.world, app)
         client = SdoClient(SteppedTransport(world.world), cfg.master.node_id, "plc",
                            timeout_s=0.01)
         ctl.boot()
@@ -303,7 +336,7 @@ def _plc_demo(record: bool = False, **demo_changes):
     app = PickPlace(replace(cfg.demo, **demo_changes))
     with SimWorld(cfg, record=record) as world:
         ctl = Controller(cfg, world.transport, app)
-        PlcNode(ctl, app)
+        _plc(ctl, world.world, app)
         client = SdoClient(SteppedTransport(world.world), cfg.master.node_id, "plc",
                            timeout_s=0.01)
         ctl.boot()

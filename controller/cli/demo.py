@@ -20,7 +20,7 @@ from ..canopen.apps.demo import PhotoEye, PickPlace
 from ..canopen.apps.report import plot_run, status_line, summary_table, write_telemetry
 from ..canopen.config import load_bus_config
 from ..canopen.master.cycle import Controller
-from ..canopen.master.plc_node import PlcNode
+from ..canopen.master.plc_node import attach_plc_node
 from ..canopen.slave.world import SimWorld
 from ..errors import ConfigError
 from ..resources import data_path
@@ -75,7 +75,9 @@ def main(argv: list[str] | None = None, prog: str = "cantrack demo") -> int:
     wall0 = time.perf_counter()
     with SimWorld(cfg, realtime=args.realtime, bus_log=out / "bus.log") as world:
         ctl = Controller(cfg, world.transport, app, on_cycle=on_cycle)
-        plc = PlcNode(ctl, app) if args.plc_node else None
+        plc = attach_plc_node(ctl, app, cfg.plc) if args.plc_node else None
+        if plc is not None:
+            app.trigger_overflow = plc.config.trigger_overflow
         ctl.boot()
         ctl.start()
         encoder = world.device(enc_name)

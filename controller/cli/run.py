@@ -40,6 +40,7 @@ from ..canopen.io.files import write_json_atomic
 from ..canopen.io.transport import RealtimeTransport
 from ..canopen.master.app import ConveyorFollow
 from ..canopen.master.cycle import Controller
+from ..canopen.master.plc_node import attach_plc_node, plc_summary
 from ..errors import CanError
 from ..tracking import Mode
 from .common import StatusLine, add_bus_arguments
@@ -60,6 +61,10 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
     p.add_argument("--ready-file", metavar="PATH",
                    help="write this file (JSON: pid, node-IDs) when the bus is open and the "
                         "boot starts (SIGTERM is handled from then on)")
+    p.add_argument("--plc-node", action="store_true",
+                   help="the controller is also a CANopen node a PLC commands "
+                        "(eds/cantrack-controller.eds, docs/plc.md); on by itself with a "
+                        ".plc section in the bus.yml")
     p.add_argument("-q", "--quiet", action="store_true", help="no live status line")
     return p
 
@@ -232,6 +237,10 @@ def main(argv: list[str] | None = None, prog: str = "cantrack run") -> int:
     wall0 = time.perf_counter()
     ctl = Controller(cfg, transport, app, on_cycle=on_cycle, keep_trace=args.telemetry is not None,
                      enforce_bus_load=False)  # (checked above, at the bus's bitrate)
+    plc = attach_plc_node(ctl, app, cfg.plc) if (args.plc_node or cfg.plc is not None) \
+        else None
+    if plc is not None:
+        print(plc_summary(plc), file=sys.stderr)
     end, error, code = "duration", None, 0
     try:
         try:
@@ -275,4 +284,8 @@ def main(argv: list[str] | None = None, prog: str = "cantrack run") -> int:
     for e in ctl.events:
         if e.reaction:
             print(f"event: {e}")
+    if plc is not None:
+        print(f"plc node: {plc.triggers} triggers taken, {plc.triggers_dropped} dropped, "
+              f"{plc.refused} commands refused, "
+              + ", ".join(f"TPDO{p.number} {p.cob_id:03X}h x{p.sent}" for p in plc.tpdos))
     return code

@@ -126,6 +126,12 @@ class Tracker:
         """A deep copy of the whole tracker (for FMU state save/restore and what-if runs)."""
         return copy.deepcopy(self)
 
+    def target(self, master: MotionState) -> MotionState:
+        """What the tracker follows for ``master`` [mm, deg]: the master itself (absolute) or
+        the master shifted by the offset kept at engage (relative); the tracking error is
+        measured against it."""
+        return self._shifted(master)
+
     # -- helpers --------------------------------------------------------------------
     def _shifted(self, m: MotionState) -> MotionState:
         if self.mode != Mode.RELATIVE:

@@ -58,6 +58,7 @@ from ...conveyor.sources import SourceState
 from ...tracking import Imfs, Limits, MasterEstimate, Mode, MotionState, Tracker, TrackState
 from ..config.demo import DemoConfig
 from ..master.app import AppStatus
+from ..config.plc import TriggerOverflow
 
 if TYPE_CHECKING:
     from ..master.cycle import Controller
@@ -85,7 +86,7 @@ class Item:
     synced_cycle: int | None = None
     picked_cycle: int | None = None
     placed_cycle: int | None = None
-    outcome: str = "pending"  # pending, placed, missed, ignored
+    outcome: str = "pending"  # pending, placed, missed, ignored, dropped (buffer full)
     reason: str = ""
     max_error_mm: float = 0.0
     u_pick: float | None = None
@@ -163,8 +164,14 @@ class PickPlace:
     #: items missed so far (counted as they end, for :meth:`status`)
     missed: int = 0
     _by_entry: dict = field(default_factory=dict)
+    #: a full trigger buffer drops the newest trigger or the oldest waiting item
+    trigger_overflow: TriggerOverflow = TriggerOverflow.DROP_NEWEST
+    #: items dropped because the trigger buffer was full
+    triggers_dropped: int = 0
     _until: int = 0
     _end_cycle: int | None = None
+    _drops_unreported: int = 0
+    _drop_reported: float | None = None
 
     @property
     def imfs(self) -> int:
@@ -235,6 +242,8 @@ class PickPlace:
             s_meas = ctl.master.belt_mm if ctl.master.belt_mm is not None else belt.pos
             item.s_item = s_meas - belt.vel * (t_now - item.t_edge_ns) * 1e-9
             item.trigger_cycle = cycle
+            if r.buffer.full and not self._make_room(ctl, cycle, t_now, item):
+                continue
             e = r.trigger(f, values=[item.s_item], item_type=item.item_type)
             item.entry_id = e.id
             self._by_entry[e.id] = item
@@ -313,6 +322,34 @@ class PickPlace:
         self._prev = m
         return m
 
+    def _make_room(self, ctl: Controller, cycle: int, t_now: int, item: Item) -> bool:
+        """The robot's trigger buffer is full: drop the new item (``drop_newest``) or the
+        oldest waiting one that is not being tracked (``drop_oldest``); count it, report it
+        (at most one event per second); True when ``item`` may go in now."""
+        r = self.robot
+        victim = item
+        if self.trigger_overflow is TriggerOverflow.DROP_OLDEST:
+            busy = self.current.entry_id if self.current is not None else None
+            for e in r.buffer.entries(self.frame.name):
+                if e.id != busy:
+                    r.buffer.remove(e)
+                    victim = self._by_entry.get(e.id, item)
+                    break
+        self._finish_item(victim, "dropped", f"trigger buffer full ({r.buffer.capacity} "
+                          f"entries, {self.trigger_overflow.value})")
+        self.triggers_dropped += 1
+        self._drops_unreported += 1
+        t_s = (t_now - ctl.t0) * 1e-9
+        if self._drop_reported is None or t_s - self._drop_reported >= 1.0:
+            n, self._drops_unreported = self._drops_unreported, 0
+            self._drop_reported = t_s
+            ctl.events.add(cycle, t_s, "demo", "trigger_dropped",
+                           f"trigger buffer of robot {r.name!r} full "
+                           f"({r.buffer.capacity} entries): item {victim.index} dropped"
+                           + (f" ({n} dropped since the last report)" if n > 1 else ""),
+                           f"{self.trigger_overflow.value} (the run goes on)")
+        return victim is not item
+
     def engage(self, ctl: Controller, mode: Mode) -> bool:
         """The PLC's 2005h: 0 de-syncs the robot from the belt (``STOP``: the item being
         approached or followed is missed); 3/5 are the program's to give (ignored)."""
@@ -335,7 +372,8 @@ class PickPlace:
         """The robot group's tracking, the photo-eye's count, the items missed."""
         return AppStatus(self.track_state if self.robot is not None else None,
                          Imfs(self.imfs) if self.robot is not None else None,
-                         self.eye.detected if self.eye is not None else None, self.missed)
+                         self.eye.detected if self.eye is not None else None, self.missed,
+                         self.triggers_dropped)
 
     def master_lost(self, ctl: Controller, cycle: int) -> None:
         if self.current is not None and self.step in (Step.APPROACH, Step.FOLLOW):

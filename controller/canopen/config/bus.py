@@ -18,6 +18,7 @@ Layout (dcfgen's keys, docs/spec/tools.md#1)::
     .tracking:   cantrack's controller settings   (controller.canopen.config.tracking)
     .simulation: simulated devices                (controller.canopen.config.simulation)
     .demo:       the demo's items and pick/place  (controller.canopen.apps.demo)
+    .plc:        the controller's node for a PLC  (controller.canopen.config.plc)
 
 dcfgen treats every top-level key except ``options`` and ``master`` as a slave, but skips
 keys that start with a dot: that is why our sections are ``.tracking`` etc.
@@ -45,6 +46,7 @@ from ..protocol import od as odm
 
 if TYPE_CHECKING:  # (the sections are read with the bus part: they import BusConfig)
     from .demo import DemoConfig
+    from .plc import PlcConfig
     from .simulation import SimulationConfig
     from .tracking import TrackingConfig
 
@@ -52,7 +54,7 @@ __all__ = ["BusConfig", "MasterConfig", "Options", "PdoEntry", "PdoSetting", "Sd
            "SlaveConfig", "parse_bus"]
 
 #: top-level dot sections cantrack reads
-DOT_SECTIONS = (".tracking", ".simulation", ".demo")
+DOT_SECTIONS = (".tracking", ".simulation", ".demo", ".plc")
 
 _PDO_KEYS = ("enabled", "cob_id", "transmission", "inhibit_time", "event_timer",
              "event_deadline", "sync_start", "mapping")
@@ -161,6 +163,7 @@ class BusConfig:
     tracking: TrackingConfig | None = None
     simulation: SimulationConfig | None = None
     demo: DemoConfig | None = None
+    plc: PlcConfig | None = None
 
     @property
     def period_ns(self) -> int:

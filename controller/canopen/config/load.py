@@ -1,6 +1,6 @@
 """Reading a whole bus.yml: the dcfgen part (:mod:`.bus`), the PDO COB-ID checks
 (:mod:`.concise`) and cantrack's dot sections (:mod:`.tracking`, :mod:`.simulation`,
-:mod:`.demo`), in this order: each part is read with what the parts before it give."""
+:mod:`.demo`, :mod:`.plc`), in this order: each part is read with what the parts before it give."""
 
 from __future__ import annotations
 
@@ -12,6 +12,7 @@ from ...yamlmarks import Section, load_marked, read_text
 from .bus import BusConfig, parse_bus
 from .concise import check_cob_ids
 from .demo import parse_demo
+from .plc import parse_plc
 from .simulation import parse_simulation
 from .tracking import parse_tracking
 
@@ -40,5 +41,6 @@ def parse_bus_config(text: str, file: str, base_dir: Path | None = None, *,
         simulation = parse_simulation(top.section(".simulation"), cfg) \
             if ".simulation" in dot else None
         demo = parse_demo(top.section(".demo"), cfg, tracking) if ".demo" in dot else None
-        cfg = replace(cfg, tracking=tracking, simulation=simulation, demo=demo)
+        plc = parse_plc(top.section(".plc"), cfg) if ".plc" in dot else None
+        cfg = replace(cfg, tracking=tracking, simulation=simulation, demo=demo, plc=plc)
     return cfg

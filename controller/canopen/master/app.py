@@ -45,12 +45,14 @@ class AppStatus:
     ``track_state``/``imfs``: the application's own belt tracking (the demo's robot group);
     None: the controller's tracker is the one (its state is reported).  ``items_detected``:
     items seen by the application's item sensor so far (None: it has none; the PLC node then
-    counts its own triggers); ``items_missed``: items missed so far."""
+    counts its own triggers); ``items_missed``: items missed so far; ``triggers_dropped``:
+    item triggers dropped by a full trigger buffer (``.plc.trigger_overflow``)."""
 
     track_state: TrackState | None = None
     imfs: Imfs | None = None
     items_detected: int | None = None
     items_missed: int = 0
+    triggers_dropped: int = 0
 
 
 #: the status of an application without tracking of its own and without items

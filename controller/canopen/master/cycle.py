@@ -201,8 +201,13 @@ class Controller:
         self._drive_silent = [0] * len(self.axes)
         self._faults_reported: set[str] = set()
         self.last_output = None
-        #: |actual - master| [mm] of the last cycle while the tracker is not OFF
+        #: |actual - target| [mm] of the last cycle while the tracker is not OFF
         self.last_tracking_error = 0.0
+        #: the controller's own NMT state, sent in its heartbeat (5 OPERATIONAL; the PLC
+        #: node's, when there is one: a PLC may put it in PRE-OPERATIONAL or STOPPED)
+        self.nmt_state = 5
+        #: when the last SYNC was sent [ns] (None before the first)
+        self.last_sync_ns: int | None = None
 
     # -- setup -------------------------------------------------------------------------------
     def _watch_nodes(self) -> None:
@@ -286,6 +291,7 @@ class Controller:
                 rec.sync_late_us = (t_sent - deadline) / 1e3
                 rec.compute_us = (t_done - t_c) / 1e3
         self._last_sync_sent = t_sent
+        self.last_sync_ns = t_sent
         self._produce_heartbeat(t_done)
         self.k = k + 1
         if rec is not None:
@@ -306,7 +312,7 @@ class Controller:
 
     def _produce_heartbeat(self, now: int) -> None:
         if self._hb_next is not None and now >= self._hb_next:
-            self.transport.send(0x700 + self.cfg.master.node_id, b"\x05")
+            self.transport.send(0x700 + self.cfg.master.node_id, bytes((self.nmt_state,)))
             self._hb_next += self.cfg.master.heartbeat_producer_ms * 1_000_000
             if self._hb_next <= now:
                 self._hb_next = now + self.cfg.master.heartbeat_producer_ms * 1_000_000
@@ -407,7 +413,8 @@ class Controller:
         counts = self.counts.to_counts(joints)
         for a, c in zip(self.axes, counts):
             a.send(cia402.CW_ENABLE, c)
-        self._master_for[k + self.master.lead] = m
+        # the tracked target (relative mode: the master plus the offset kept at engage)
+        self._master_for[k + self.master.lead] = tracker.target(m)
         return joints
 
     def _limit_violation(self, joints, velocities) -> tuple[AxisIO, str] | None:

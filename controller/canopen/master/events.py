@@ -43,6 +43,16 @@ class EventKind(StrEnum):
     BAD_FRAME = "bad_frame"              #: a frame of wrong length/format (not processed)
     ERROR_PASSIVE = "error_passive"      #: the CAN controller error passive
     BUS_OFF = "bus_off"                  #: the CAN controller bus-off
+    TRIGGER_DROPPED = "trigger_dropped"  #: the demo: a full trigger buffer dropped an item
+    # the controller's own node for a PLC (docs/plc.md)
+    PLC_NOT_OPERATIONAL = "plc_not_operational"  #: a motion write outside NMT OPERATIONAL
+    PLC_NO_COMMANDER = "plc_no_commander"  #: a motion write without the commander's heartbeat
+    PLC_OUTSIDE_WINDOW = "plc_outside_window"  #: a motion write outside the command window
+    PLC_COMMANDER_LOST = "plc_commander_lost"  #: the commander's heartbeat timed out
+    PLC_COMMANDER_BACK = "plc_commander_back"  #: the commander's heartbeat is back
+    PLC_NMT = "plc_nmt"                  #: the node's NMT state changed by a command
+    PLC_COB_ID_REFUSED = "plc_cob_id_refused"  #: a PDO COB-ID write refused
+    PLC_TRIGGER_DROPPED = "plc_trigger_dropped"  #: trigger edges over the rate limit
 
 
 @dataclass(frozen=True, slots=True)
