@@ -20,7 +20,7 @@ import canopen
 import pytest
 from canopen.sdo import SdoAbortedError
 
-from controller.canopen.config.plc import CommanderLoss, PlcConfig
+from controller.canopen.config.plc import CommanderLoss, PlcConfig, TriggerOverflow
 from controller.canopen.master.app import ConveyorFollow
 from controller.canopen.master.cycle import Controller, Phase
 from controller.canopen.master.plc_node import attach_plc_node
@@ -382,7 +382,6 @@ def test_trigger_flood_into_a_full_buffer_never_aborts(policy):
     limit and become items; the robot's 32-entry trigger buffer overflows; the policy drops
     items, counts and reports them; the run goes on (it used to end with 'trigger buffer
     full', exit 2)."""
-    from controller.canopen.config.plc import TriggerOverflow
 
     with demo_cell(trigger_overflow=TriggerOverflow(policy)) as (sim, ctl, app, node, remote):
         while ctl.phase is not Phase.RUNNING:
@@ -410,3 +409,35 @@ def test_trigger_flood_into_a_full_buffer_never_aborts(policy):
             newest = max((i for i in app.items() if i.entry_id is not None),
                          key=lambda i: i.t_edge_ns)
             assert newest.outcome != "dropped"  # (the newest trigger is kept)
+
+
+@pytest.mark.parametrize("section, message", [
+    ("  commander_heartbeat_ms: 300\n", "'.plc.commander'"),
+    ("  commander: 1\n", "controller's own node-ID"),
+    ("  commander: 11\n", "slave 'x'"),
+    ("  commander: 200\n", "'.plc.commander'"),
+    ("  commander: 32\n  on_commander_lost: halt\n", "continue, desync, stop"),
+    ("  commander: 32\n  command_window_us: 5000\n", "'.plc.command_window_us'"),
+    ("  commander: 32\n  trigger_overflow: drop\n", "drop_newest, drop_oldest"),
+    ("  commander: 32\n  comander_heartbeat_ms: 300\n", "comander_heartbeat_ms"),
+])
+def test_plc_section_errors_name_file_line_and_key(tmp_path, section, message):
+    from controller.canopen.testing import bus_yml, bus_yml_text
+    from controller.errors import ConfigError
+
+    path = bus_yml(tmp_path, text=bus_yml_text() + "\n.plc:\n" + section)
+    with pytest.raises(ConfigError) as e:
+        load(tmp_path, text=path.read_text())
+    text = str(e.value)
+    assert "bus.yml" in text and ":" in text and message in text, text
+
+
+def test_plc_section_parsed(tmp_path):
+    from controller.canopen.testing import bus_yml_text
+
+    cfg = load(tmp_path, text=bus_yml_text() + "\n.plc:\n  commander: 0x20\n"
+               "  on_commander_lost: stop\n  command_window_us: 500\n"
+               "  trigger_overflow: drop_oldest\n")
+    assert cfg.plc == PlcConfig(commander=0x20, on_commander_lost=CommanderLoss.STOP,
+                                command_window_us=500,
+                                trigger_overflow=TriggerOverflow.DROP_OLDEST)

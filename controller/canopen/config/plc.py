@@ -18,12 +18,15 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from enum import Enum
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, TypeVar
 
 from ...yamlmarks import Section
 
 if TYPE_CHECKING:
     from .bus import BusConfig
+
+
+E = TypeVar("E", bound=Enum)
 
 
 class CommanderLoss(Enum):
@@ -53,7 +56,7 @@ class PlcConfig:
     trigger_overflow: TriggerOverflow = TriggerOverflow.DROP_NEWEST
 
 
-def _choice(s: Section, key: str, enum: type[Enum], default: Enum) -> Enum:
+def _choice(s: Section, key: str, enum: type[E], default: E) -> E:
     value = s.str(key, default.value, choices=[e.value for e in enum])
     return enum(value)
 
@@ -83,4 +86,4 @@ def parse_plc(s: Section, cfg: BusConfig) -> PlcConfig:
         trigger_overflow=_choice(s, "trigger_overflow", TriggerOverflow,
                                  d.trigger_overflow))
     s.finish()
-    return out  # type: ignore[return-value]
+    return out

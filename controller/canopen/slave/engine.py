@@ -44,6 +44,7 @@ Subclasses implement the hooks at the end of :class:`SlaveEngine`.
 
 from __future__ import annotations
 
+import math
 import struct
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -276,6 +277,11 @@ class SlaveEngine:
             self._vars[key] = v
         return v
 
+    def _subs(self, index: int) -> list[int]:
+        """The sub-indices of a record/array object (``[0]`` for a plain variable)."""
+        obj = self.od[index]
+        return [0] if isinstance(obj, ODVariable) else list(obj.subindices)
+
     def has(self, index: int, sub: int = 0) -> bool:
         return odm.variable(self.od, index, sub) is not None
 
@@ -284,7 +290,7 @@ class SlaveEngine:
         c = self._codecs.get(key)
         if c is None:
             v = self.var(index, sub)
-            fmt = odm.STRUCT_FORMAT.get(v.data_type)
+            fmt = odm.STRUCT_FORMAT.get(v.data_type) if v.data_type is not None else None
             c = (struct.Struct("<" + fmt) if fmt else None, v)
             self._codecs[key] = c
         return c
@@ -370,7 +376,7 @@ class SlaveEngine:
     @staticmethod
     def _check_range(v: ODVariable, value: Any) -> None:
         if v.data_type in (REAL32, REAL64):
-            if value != value:  # NaN
+            if math.isnan(value):
                 raise SdoAbortError(ABORT_VALUE_RANGE)
             return
         if not isinstance(value, int):
@@ -457,7 +463,7 @@ class SlaveEngine:
         self.store(0x1001, 0, register)
         if code != 0 and 0x1003 in self.od:
             n = int(self.load(0x1003, 0))
-            depth = max(s for s in self.od[0x1003].subindices)
+            depth = max(s for s in self._subs(0x1003))
             history = [int(self.load(0x1003, i)) for i in range(1, min(n, depth) + 1)]
             history = [code] + history[: depth - 1]
             for i, value in enumerate(history, start=1):
@@ -558,7 +564,7 @@ class SlaveEngine:
         self._consumers = {}
         if 0x1016 not in self.od:
             return
-        for sub in self.od[0x1016].subindices:
+        for sub in self._subs(0x1016):
             if sub == 0:
                 continue
             value = int(self.load(0x1016, sub))

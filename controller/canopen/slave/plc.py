@@ -134,7 +134,7 @@ class TriggerRate:
     """At most ``max_per_s`` accepted edges within any 1 s (a sliding window) [ns times]."""
 
     def __init__(self, max_per_s: float) -> None:
-        self.max = max(1, int(math.floor(max_per_s)))
+        self.max = max(1, math.floor(max_per_s))
         self._times: deque[int] = deque()
 
     def accept(self, t_ns: int) -> bool:
@@ -211,11 +211,12 @@ class PlcNode(SlaveEngine):
         if c.commander is not None:
             self.store(0x1016, 1, (c.commander << 16) | c.commander_heartbeat_ms)
             self._load_consumers()
-        for sub, value in ((1, c.commander or 0),
-                           (2, list(CommanderLoss).index(c.on_commander_lost)),
-                           (3, c.command_window_us), (4, int(c.trigger_rate_max)),
-                           (5, list(TriggerOverflow).index(c.trigger_overflow))):
-            self.store(0x2020, sub, value)
+        settings: tuple[tuple[int, int], ...] = (
+            (1, c.commander or 0), (2, list(CommanderLoss).index(c.on_commander_lost)),
+            (3, c.command_window_us), (4, int(c.trigger_rate_max)),
+            (5, list(TriggerOverflow).index(c.trigger_overflow)))
+        for sub, setting in settings:
+            self.store(0x2020, sub, setting)
         for sub, value in zip((1, 2, 3), limits):
             self.store(0x2010, sub, float(value))
         if version:
