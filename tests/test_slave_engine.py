@@ -20,7 +20,7 @@ from canopen.sdo import SdoAbortedError
 
 from controller.canopen.io.clock import RealtimeClock
 from controller.canopen.io.transport import DeviceThread, Port, SteppedWorld, virtual_bus
-from controller.canopen.slave.engine import (
+from controller.canopen.protocol.sdo import (
     ABORT_COMMAND,
     ABORT_GENERAL,
     ABORT_LENGTH,
@@ -28,10 +28,8 @@ from controller.canopen.slave.engine import (
     ABORT_NO_SUB,
     ABORT_READ_ONLY,
     ABORT_VALUE_RANGE,
-    Nmt,
-    SlaveEngine,
-    restricted_can_id,
 )
+from controller.canopen.slave.engine import Nmt, SlaveEngine, restricted_can_id
 from controller.resources import data_path
 
 SERVO = data_path("eds", "cantrack-servo.eds")

@@ -29,6 +29,7 @@ controller sent after each SYNC, timing and the exit code.
 from __future__ import annotations
 
 import argparse
+import sys
 import time
 from collections.abc import Callable
 

@@ -102,7 +102,8 @@ def attach_plc_node(ctl: Controller, app: Application | None = None,
     configured = {p.cob_id: f"{p.kind.upper()}{p.number} of {cfg.label(name)}"
                   for name, pdos in effective_pdos(cfg).items() for p in pdos.all()
                   if p.enabled}
-    lim = cfg.tracking.tracker.sync_trans
+    lim = ctl.tc.tracker.sync_trans  # (the controller checked that .tracking is there)
+    assert lim is not None  # (TrackerParams fills it in)
     node = PlcNode(host, ctl.transport, m.node_id, sync_period_us=m.sync_period_us,
                    sync_overflow=m.sync_overflow, heartbeat_ms=m.heartbeat_producer_ms or 0,
                    sync_limits=(lim.vel, lim.acc, lim.jerk), config=config,

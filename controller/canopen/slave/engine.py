@@ -60,7 +60,7 @@ from canopen.objectdictionary import (
     ObjectDictionary,
     ODVariable,
 )
-from canopen.sdo import SdoAbortedError, SdoServer
+from canopen.sdo import SdoServer
 
 from ..io.clock import Clock
 from ..protocol import od as odm
@@ -839,17 +839,17 @@ class SlaveEngine:
         return True
 
     def check_read(self, index: int, sub: int) -> None:
-        """An SDO upload of ``index:sub`` (raise SdoAbortedError to refuse it)."""
+        """An SDO upload of ``index:sub`` (raise SdoAbortError to refuse it)."""
 
     def check_access(self, index: int, sub: int) -> None:
-        """An SDO download to ``index:sub`` starts (raise SdoAbortedError to refuse it)."""
+        """An SDO download to ``index:sub`` starts (raise SdoAbortError to refuse it)."""
 
     def cob_id_conflict(self, kind: str, number: int, can_id: int) -> str | None:
         """Why ``can_id`` may not be used by PDO ``number`` of ``kind`` (None: it may)."""
         return None
 
     def on_write(self, index: int, sub: int, value: Any) -> None:
-        """An SDO write (raise SdoAbortedError to refuse it; stored after this returns)."""
+        """An SDO write (raise SdoAbortError to refuse it; stored after this returns)."""
 
     def on_rpdo_data(self, number: int, values: list[tuple[int, int, bytes]]
                      ) -> list[tuple[int, int, bytes]]:

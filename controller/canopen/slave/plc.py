@@ -53,20 +53,16 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol
 
-from canopen.sdo import SdoAbortedError
-
 from ...resources import data_path
 from ...tracking import Mode, TrackState
 from ..config.plc import CommanderLoss, PlcConfig, TriggerOverflow
-from .engine import (
+from ..protocol.sdo import (
     ABORT_DEVICE_STATE,
-    ABORT_LOCAL_CONTROL,
     ABORT_STORE,
     ABORT_VALUE_RANGE,
-    Nmt,
-    SlaveBus,
-    SlaveEngine,
+    SdoAbortError,
 )
+from .engine import ABORT_LOCAL_CONTROL, Nmt, SlaveBus, SlaveEngine
 
 EDS = data_path("eds", "cantrack-controller.eds")
 
@@ -277,12 +273,12 @@ class PlcNode(SlaveEngine):
     # -- engine hooks ------------------------------------------------------------------------
     def check_access(self, index: int, sub: int) -> None:
         if index in CONFIG_OWNED or (index == 0x1003 and sub == 0):
-            raise SdoAbortedError(ABORT_STORE)
+            raise SdoAbortError(ABORT_STORE)
         if index in MOTION_OBJECTS:
             r = self.refusal()
             if r is not None:
                 self._refuse(index, sub, r, "SDO")
-                raise SdoAbortedError(r.code)
+                raise SdoAbortError(r.code)
 
     def cob_id_conflict(self, kind: str, number: int, can_id: int) -> str | None:
         for p in (*self.rpdos.values(), *self.tpdos):
@@ -296,7 +292,7 @@ class PlcNode(SlaveEngine):
     def _check_pdo_cob_id(self, kind: str, comm: int, value: int) -> None:
         try:
             super()._check_pdo_cob_id(kind, comm, value)
-        except SdoAbortedError as exc:
+        except SdoAbortError as exc:
             number = comm - (0x1400 if kind == "rpdo" else 0x1800) + 1
             why = self.cob_id_conflict(kind, number, value & 0x7FF)
             self.host.event(
@@ -310,21 +306,21 @@ class PlcNode(SlaveEngine):
     def on_write(self, index: int, sub: int, value: Any) -> None:
         if index == 0x2005:
             if value not in ENGAGE_VALUES:
-                raise SdoAbortedError(ABORT_VALUE_RANGE)
+                raise SdoAbortError(ABORT_VALUE_RANGE)
             if not self.host.tracking():
-                raise SdoAbortedError(ABORT_DEVICE_STATE)
+                raise SdoAbortError(ABORT_DEVICE_STATE)
             self._engage(int(value))  # (an SDO write is an explicit command: acts every time)
         elif index == 0x2004:
             if value > 1:
-                raise SdoAbortedError(ABORT_VALUE_RANGE)
+                raise SdoAbortError(ABORT_VALUE_RANGE)
             self._trigger_input(int(value))
         elif index == 0x2010:
             if self.host.track_state() is not TrackState.OFF:
-                raise SdoAbortedError(ABORT_DEVICE_STATE)
+                raise SdoAbortError(ABORT_DEVICE_STATE)
             if not value > 0:
-                raise SdoAbortedError(ABORT_VALUE_RANGE)
+                raise SdoAbortError(ABORT_VALUE_RANGE)
             # (the limits are the configuration's: not changed at run time)
-            raise SdoAbortedError(ABORT_STORE)
+            raise SdoAbortError(ABORT_STORE)
 
     def on_rpdo_data(self, number: int, values: list[tuple[int, int, bytes]]
                      ) -> list[tuple[int, int, bytes]]:
