@@ -109,6 +109,9 @@ def attach_plc_node(ctl: Controller, app: Application | None = None,
                    sync_limits=(lim.vel, lim.acc, lim.jerk), config=config,
                    reserved=reserved_cob_ids(m.node_id, config.commander, slaves, configured),
                    eds=eds, version=__version__)
+    ctl.actors.nmt_slave = True  # (NMT to our node-ID: the node's, not another master's)
+    if config.commander is not None:
+        ctl.actors.node_known(config.commander)
     chained = ctl.on_cycle
 
     def on_cycle(c: Controller, rec: CycleRecord) -> None:

@@ -179,6 +179,9 @@ class BusActors:
         self.counts: dict[str, int] = {}
         self._reported: set[tuple] = set()
         self.master_id = cfg.master.node_id
+        #: NMT commands to the controller's own node-ID belong to its PLC node (an NMT slave
+        #: that obeys them, docs/plc.md), not to another master (set by ``attach_plc_node``)
+        self.nmt_slave = False
         known = {s.node_id for s in cfg.slaves.values()} | {self.master_id}
         transport.subscribe(0x000, self._on_nmt)
         transport.subscribe(sync_cob, self._on_sync)
@@ -201,10 +204,17 @@ class BusActors:
         return self.cfg.label(s.name) if s is not None else \
             ("the controller" if node == self.master_id else f"node {node} (not configured)")
 
+    def node_known(self, node: int) -> None:
+        """``node`` is on the bus on purpose (the PLC node's commander): its heartbeat is no
+        unknown node."""
+        self.transport.unsubscribe(0x700 + node, self._on_unknown)
+
     def _on_nmt(self, can_id: int, data: bytes, t_ns: int) -> None:
         if not self.hygiene.check_exact(can_id, data, (2,), "NMT command", t_ns):
             return
         cmd, node = data[0], data[1]
+        if node == self.master_id and self.nmt_slave:
+            return  # (the PLC node's: it obeys or reports it)
         name = NMT_COMMANDS.get(cmd, f"command {cmd:02X}h")
         self._add(("nmt", cmd, node), "another NMT master", Disturbance.FOREIGN_NMT,
                   f"NMT {name} ({cmd:02X}h) to {self._target(node)}, not sent by the "
