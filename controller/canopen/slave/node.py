@@ -120,7 +120,7 @@ class SimNode(SlaveEngine):
     def reset_itself(self) -> None:
         """The node resets on its own (a watchdog, a supply glitch): reset application, then
         its boot-up after ``boot_delay_ns``, in pre-operational with its EDS defaults."""
-        self._reset(application=True)
+        self.reset(application=True)
 
     def power_off(self) -> None:
         """The node disappears: it neither answers nor sends."""
