@@ -154,6 +154,11 @@ from ruckig import ControlInterface, InputParameter, Ruckig, Synchronization, Tr
 from .types import Limits
 from .vec import Vec
 
+#: rows (u1, u2, u3) of a rotation R (q = R e); None stands for the world axes
+Basis = tuple[Vec, Vec, Vec]
+#: velocity and acceleration weights per axis (w_v, w_a)
+Weights = tuple[Vec, Vec]
+
 #: lengths (mm or deg) -> Ruckig units (m or kdeg): Ruckig needs SI-like magnitudes
 _S = 1e-3
 _INV_S = 1e3
@@ -222,7 +227,7 @@ class _Plan:
         self.inputs = inputs
         #: rows of R (q = R e) or None for the world axes; R * 1e3 (q in m -> e in mm)
         self.basis = basis
-        self.basis_mm = None if basis is None else tuple(
+        self.basis_mm: tuple[Vec, ...] | None = None if basis is None else tuple(
             tuple([x * _INV_S for x in row]) for row in basis)
         self.mp0, self.mv0, self.ma0 = mp0, mv0, ma0  # master at the plan origin (mm units)
         self.duration = duration  # s
@@ -244,11 +249,12 @@ class _Plan:
 
 
 class _Frame:
-    """The relative problem in one basis: e0 (scaled lists), master v/a and robot v/a."""
+    """The relative problem in one basis: e0 (scaled lists; empty in the fallback's frame,
+    which never plans from it), master v/a and robot v/a."""
 
     __slots__ = ("acc", "basis", "e0", "ma", "mv", "ra", "rv")
 
-    def __init__(self, basis, e0: tuple, mv: Vec, ma: Vec, rv: Vec, ra: Vec,
+    def __init__(self, basis: Basis | None, e0: tuple, mv: Vec, ma: Vec, rv: Vec, ra: Vec,
                  acc: bool) -> None:
         self.basis, self.e0, self.mv, self.ma, self.rv, self.ra, self.acc = (
             basis, e0, mv, ma, rv, ra, acc)
@@ -286,6 +292,7 @@ def _master_basis(mv: Vec, ma: Vec, ep: Vec, ev: Vec):
         e[k] = 1.0
         u2 = _unit((u1[1] * e[2] - u1[2] * e[1], u1[2] * e[0] - u1[0] * e[2],
                     u1[0] * e[1] - u1[1] * e[0]))
+        assert u2 is not None  # u1 x e_k != 0: e_k is the world axis least along u1
     u3 = (u1[1] * u2[2] - u1[2] * u2[1], u1[2] * u2[0] - u1[0] * u2[2],
           u1[0] * u2[1] - u1[1] * u2[0])
     return (u1, u2, u3)
@@ -311,6 +318,12 @@ class OptimalPlanner:
 
     name = "optimal"
 
+    #: the Ruckig solver, its input and its trajectory for n DOFs: made by _solver() at the
+    #: first reset (None before, and in a pickle; ruckig has no type information)
+    _rk: Ruckig
+    _inp: InputParameter
+    _traj: Trajectory
+
     def __init__(self, limits: Limits, sample_time_s: float, *, per_axis: bool = False,
                  replan_always: bool = False, conservative: bool = True) -> None:
         self.limits = limits
@@ -327,8 +340,8 @@ class OptimalPlanner:
         self.p: Vec = ()
         self.v: Vec = ()
         self.a: Vec = ()
-        self.basis = None
-        self.w: Vec | None = None
+        self.basis: Basis | None = None
+        self.w: Weights | None = None
         self.plan: _Plan | None = None
         self.done = False
         self._k = 0  # samples since reset
@@ -435,6 +448,7 @@ class OptimalPlanner:
     def _sample(self, t: float, mp: Vec, mv: Vec, ma: Vec) -> tuple[Vec, Vec, Vec, bool]:
         """master + e(t) (plan time t), e = R^T q [mm], q from the Ruckig trajectory."""
         qp, qv, qa = self._traj.at_time(t)
+        assert self.plan is not None  # a plan is being sampled
         R = self.plan.basis_mm
         if R is None:
             s = _INV_S
@@ -621,7 +635,7 @@ class OptimalPlanner:
         return until
 
     # -- evaluation of one (basis, w) --------------------------------------------------
-    def _inputs(self, fr: _Frame, w: Vec, vlo: list, vhi: list) -> tuple:
+    def _inputs(self, fr: _Frame, w: Weights, vlo: list, vhi: list) -> tuple:
         """Ruckig inputs of the relative plan; vlo/vhi: master velocity range per axis."""
         s = _S
         V, A, J = self._V, self._A, self._J
@@ -662,7 +676,7 @@ class OptimalPlanner:
             fa.append(f_a)
         return fv, fa
 
-    def _checked(self, fr: _Frame, w: Vec) -> tuple[tuple, float, float] | None:
+    def _checked(self, fr: _Frame, w: Weights) -> tuple[tuple, float, float] | None:
         """(Ruckig inputs, duration, valid_until) of the plan with w, calculated into
         ``_traj``; None if some axis is infeasible.  valid_until [s] is when the master's
         own velocity component leaves the box V*w_i on an axis that is already done (it
@@ -692,7 +706,7 @@ class OptimalPlanner:
             return None
         return inputs, D, valid
 
-    def _evaluate(self, fr: _Frame, w: Vec, exact: bool,
+    def _evaluate(self, fr: _Frame, w: Weights, exact: bool,
                   H0: list | None = None) -> tuple[list, tuple] | None:
         """Per-axis durations [s] with weights w (inf: infeasible axis) and the Ruckig
         inputs; None on a Ruckig error.  Constant master: exact bounds.  Accelerating
@@ -710,14 +724,13 @@ class OptimalPlanner:
             return self._evaluate_exact(fr, w, vlo, vhi)
         return self._evaluate_horizon(fr, w, vlo, vhi, H0)
 
-    def _evaluate_exact(self, fr: _Frame, w: Vec, vlo: list,
+    def _evaluate_exact(self, fr: _Frame, w: Weights, vlo: list,
                         vhi: list) -> tuple[list, tuple] | None:
         n = self.n
         V = self._V
         mv = fr.mv
         dur = [math.inf] * n
         todo = list(range(n))
-        inputs = None
         prev: dict = {}  # (axis, side) -> (tightening, excess) of the last round
         for _ in range(10):
             inputs = self._inputs(fr, w, vlo, vhi)
@@ -748,7 +761,7 @@ class OptimalPlanner:
             inputs = self._inputs(fr, w, vlo, vhi)
         return dur, inputs
 
-    def _evaluate_horizon(self, fr: _Frame, w: Vec, vlo: list, vhi: list,
+    def _evaluate_horizon(self, fr: _Frame, w: Weights, vlo: list, vhi: list,
                           H0: list | None) -> tuple[list, tuple] | None:
         n = self.n
         V = self._V
@@ -757,7 +770,6 @@ class OptimalPlanner:
         H = [0.0] * n if H0 is None else [h if h < math.inf else 0.0 for h in H0]
         dur = [math.inf] * n
         todo = list(range(n))
-        inputs = None
         for _ in range(8):
             out = set()
             for i in todo:
@@ -785,7 +797,7 @@ class OptimalPlanner:
                 break
         return dur, inputs
 
-    def _velocity_excess(self, fr: _Frame, w: Vec, axes: list) -> dict | None:
+    def _velocity_excess(self, fr: _Frame, w: Weights, axes: list) -> dict | None:
         """Per axis in ``axes`` (over, under) [mm/s] by which the robot's velocity
         (R v_m(t))_i + q_v,i(t) leaves [-V*w_i, V*w_i] during the calculated plan.
         Excursions that only continue an initial velocity already outside the box are not
@@ -815,7 +827,7 @@ class OptimalPlanner:
             if br.duration > 0.0:
                 segs = list(zip(br.t, br.j, br.a, br.v)) + list(zip(pr.t, pr.j, pr.a, pr.v))
             else:
-                segs = zip(pr.t, pr.j, pr.a, pr.v)
+                segs = list(zip(pr.t, pr.j, pr.a, pr.v))
             for dt, j, a0, v0 in segs:
                 if dt <= 0.0:
                     continue
@@ -957,7 +969,7 @@ class OptimalPlanner:
         V, A, J = self._V, self._A, self._J
         self.n_fallback += 1
         mbv = [mv[i] - ma[i] * self.T for i in rng]
-        fr = _Frame(None, None, (0.0,) * n, (0.0,) * n, self.v, self.a, False)
+        fr = _Frame(None, (), (0.0,) * n, (0.0,) * n, self.v, self.a, False)
         fv, fa = self._floors(fr, True)
 
         def fit(s):

@@ -30,15 +30,15 @@ import math
 from typing import Callable
 
 from .desync import Desync
-
-#: Builds the de-sync stops (translation, rotation) for a tracker about to de-sync, or returns
-#: None for the default straight-line stops.  The conveyor model supplies arcs this way.
-DesyncBuilder = Callable[["Tracker"], "tuple[Desync, Desync] | None"]
 from .oscillation import OscillationMonitor
 from .planner import ChannelPlanner, planner_factory
 from .types import (Imfs, Mode, MotionState, TrackError, TrackerOutput, TrackerParams,
                     TrackState)
-from .vec import Vec
+from .vec import Vec, vec3
+
+#: Builds the de-sync stops (translation, rotation) for a tracker about to de-sync, or returns
+#: None for the default straight-line stops.  The conveyor model supplies arcs this way.
+DesyncBuilder = Callable[["Tracker"], "tuple[Desync, Desync] | None"]
 
 _IMFS = {TrackState.OFF: Imfs.NOT_SYNCHRONIZED, TrackState.SYNCING: Imfs.NOT_SYNCHRONIZED,
          TrackState.SYNCED: Imfs.SYNCHRONIZED, TrackState.DESYNCING: Imfs.DESYNCING}
@@ -180,7 +180,7 @@ class Tracker:
         tr, rot = built
         p, _, _ = tr.state(tr.stop.duration)
         (a,), _, _ = rot.state(rot.stop.duration)
-        self.desync_end = MotionState(tuple(p), (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), a, 0.0, 0.0)
+        self.desync_end = MotionState(vec3(p), (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), a, 0.0, 0.0)
         self.desync_count += 1
 
     def _check_master(self, m: MotionState) -> TrackError:
@@ -205,6 +205,9 @@ class Tracker:
         k = self.sample
         state = self.state
         synced_now = False
+        pos: Vec
+        vel: Vec
+        acc: Vec
 
         if state in (TrackState.SYNCING, TrackState.SYNCED):
             err = self._check_master(master)
@@ -232,7 +235,7 @@ class Tracker:
                 self._synced[1] = ok
                 if not ok and self._osc[1].update(k, (m.ang_vel - ang_vel,)):
                     self.error = TrackError.OVER_OSCILLATION
-            self.setpoint = MotionState(tuple(pos), tuple(vel), tuple(acc), ang, ang_vel, ang_acc)
+            self.setpoint = MotionState(vec3(pos), vec3(vel), vec3(acc), ang, ang_vel, ang_acc)
             if self._synced[0] and self._synced[1]:
                 self.state = TrackState.SYNCED
                 self.synced_at = k
@@ -245,10 +248,11 @@ class Tracker:
             self.setpoint = self._shifted(master)
         elif state == TrackState.DESYNCING:
             t = (k - self._desync_start) * self.T
+            assert self._desync is not None  # set with the DESYNCING state
             tr, rot = self._desync
             pos, vel, acc = tr.state(t)
             (ang,), (ang_vel,), (ang_acc,) = rot.state(t)
-            self.setpoint = MotionState(pos, vel, acc, ang, ang_vel, ang_acc)
+            self.setpoint = MotionState(vec3(pos), vec3(vel), vec3(acc), ang, ang_vel, ang_acc)
             if tr.finished(t) and rot.finished(t):
                 self.state = TrackState.OFF
                 self._desync = None

@@ -228,7 +228,8 @@ class TrackerParams:
         try:
             object.__setattr__(self, "mode", Mode(self.mode))
         except ValueError:
-            raise ParameterError(f"mode (={self.mode!r}) must be 3 (absolute) or 5 (relative)")
+            raise ParameterError(
+                f"mode (={self.mode!r}) must be 3 (absolute) or 5 (relative)") from None
         if self.mode == Mode.OFF:
             raise ParameterError("mode (=0) must be 3 (absolute) or 5 (relative)")
         # (<= MAX_FACTOR: beyond it the softmc thresholds and time-to-reach overflow to
@@ -251,7 +252,9 @@ class TrackerParams:
         """A copy with some fields changed (validated again)."""
         return replace(self, **changes)
 
-    def _effective(self, value: Limits, robot_max: Limits | None, accel_rate: float) -> Limits:
+    def _effective(self, value: Limits | None, robot_max: Limits | None,
+                   accel_rate: float) -> Limits:
+        assert value is not None  # __post_init__ filled in the defaults
         if robot_max is None:
             return value
         r = self.rates
