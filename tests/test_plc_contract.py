@@ -285,7 +285,7 @@ def test_trigger_rate_limit_never_aborts(tmp_path):
     with cell(tmp_path) as (sim, ctl, node, remote, hb):
         _running(ctl)
         k0 = ctl.k
-        for i in range(1000):  # one edge every 2 ms: 0 then 1 in one cycle
+        for _i in range(1000):  # one edge every 2 ms: 0 then 1 in one cycle
             remote.network.send_message(0x200 + NODE, bytes([0, 0]))
             remote.network.send_message(0x200 + NODE, bytes([0, 1]))
             ctl.step()

@@ -231,7 +231,7 @@ def test_nmt_states_gate_sdo_and_pdos():
         peer.send(0x000, bytes([0x01, 0x00]))  # start all
         world.run_until(world.clock.now_ns() + 1_000_000)
         assert eng.nmt_state is Nmt.OPERATIONAL
-        hb = [d for d in peer.ids(0x700 + NODE)]
+        hb = list(peer.ids(0x700 + NODE))
         world.run_until(world.clock.now_ns() + 250_000_000)
         assert peer.ids(0x700 + NODE)[len(hb):] == [b"\x05", b"\x05"]  # 100 ms producer
         peer.send(0x000, bytes([0x82, NODE]))  # reset communication: boot-up again

@@ -53,9 +53,10 @@ from ...conveyor import (
     Window,
     q_axis_angle,
 )
-from ...conveyor.location import q_to_axis_angle
+from ...conveyor.location import q_to_axis_angle, vec3
 from ...conveyor.sources import SourceState
 from ...tracking import Imfs, Limits, MasterEstimate, Mode, MotionState, Tracker, TrackState
+from ...errors import StateError
 from ..config.demo import DemoConfig
 from ..master.app import AppStatus
 from ..config.plc import TriggerOverflow
@@ -233,8 +234,14 @@ class PickPlace:
         if item is self.current:
             self.current = None
 
+    def _cell(self) -> tuple[RobotGroup, MovingFrame]:
+        """The robot group and its moving frame (made by ``setup``)."""
+        if self.robot is None or self.frame is None:
+            raise StateError("the conveyor demo is not set up (setup() makes its robot)")
+        return self.robot, self.frame
+
     def update(self, ctl: Controller, cycle: int, belt: MasterEstimate) -> MotionState:
-        r, f = self.robot, self.frame
+        r, f = self._cell()
         T = self._T
         t_now = ctl.t0 + cycle * ctl.period_ns
         f.set_master([SourceState(belt.pos, belt.vel, belt.acc)], r.k)
@@ -294,31 +301,31 @@ class PickPlace:
             ctl.tracker.engage(Mode.ABSOLUTE)  # (de-synced by a silent encoder: follow again)
         out = r.update()
         self.imfs_log.append(int(out.imfs))
-        for e in out.events:
-            ev_item = self._by_entry.get(e.item) if e.item is not None else None
-            if ev_item is not None and e.kind == "engaged" and ev_item.outcome == "pending":
+        for ev in out.events:
+            ev_item = self._by_entry.get(ev.item) if ev.item is not None else None
+            if ev_item is not None and ev.kind == "engaged" and ev_item.outcome == "pending":
                 ev_item.engage_cycle = cycle
                 ev_item.synced_cycle = None
-            elif ev_item is not None and e.kind == "synchronized" \
+            elif ev_item is not None and ev.kind == "synchronized" \
                     and ev_item.synced_cycle is None:
                 ev_item.synced_cycle = cycle
-            if e.kind == "item_missed" and e.item in self._by_entry:
-                item = self._by_entry[e.item]
-                self._finish_item(item, "missed", f"left the window ({e.code})")
+            if ev.kind == "item_missed" and ev.item in self._by_entry:
+                item = self._by_entry[ev.item]
+                self._finish_item(item, "missed", f"left the window ({ev.code})")
                 if self.step in (Step.APPROACH, Step.FOLLOW):
                     self.step = Step.WAIT
                 ctl.events.add(cycle, (t_now - ctl.t0) * 1e-9, "demo", "item_missed",
-                               f"item {item.index} missed ({ITEM_MISSED_CODE}): {e.message}",
+                               f"item {item.index} missed ({ITEM_MISSED_CODE}): {ev.message}",
                                level=20)
         loc = out.setpoint
         axis, ang = q_to_axis_angle(loc.ori)
         if axis[2] < 0:
             ang = -ang
         prev = self._prev
-        vel = tuple(out.velocity)
-        acc = tuple((a - b) / T for a, b in zip(vel, prev.vel))
+        vel = vec3(out.velocity)
+        acc = vec3((a - b) / T for a, b in zip(vel, prev.vel))
         ang_vel = (ang - prev.ang) / T
-        m = MotionState(tuple(loc.pos), vel, acc, ang, ang_vel, (ang_vel - prev.ang_vel) / T)
+        m = MotionState(vec3(loc.pos), vel, acc, ang, ang_vel, (ang_vel - prev.ang_vel) / T)
         self._prev = m
         return m
 
@@ -326,11 +333,11 @@ class PickPlace:
         """The robot's trigger buffer is full: drop the new item (``drop_newest``) or the
         oldest waiting one that is not being tracked (``drop_oldest``); count it, report it
         (at most one event per second); True when ``item`` may go in now."""
-        r = self.robot
+        r, f = self._cell()
         victim = item
         if self.trigger_overflow is TriggerOverflow.DROP_OLDEST:
             busy = self.current.entry_id if self.current is not None else None
-            for e in r.buffer.entries(self.frame.name):
+            for e in r.buffer.entries(f.name):
                 if e.id != busy:
                     r.buffer.remove(e)
                     victim = self._by_entry.get(e.id, item)
@@ -378,15 +385,17 @@ class PickPlace:
     def master_lost(self, ctl: Controller, cycle: int) -> None:
         if self.current is not None and self.step in (Step.APPROACH, Step.FOLLOW):
             self._finish_item(self.current, "missed", "encoder silent")
-            self.robot.stop()
+            self._cell()[0].stop()
             self.step = Step.WAIT
 
     def done(self, ctl: Controller, cycle: int) -> bool:
         if self._end_cycle is not None and cycle >= self._end_cycle:
             return True
         all_seen = self.eye is not None and len(self.done_items) == len(self.eye.items)
-        return all_seen and self.step == Step.WAIT and not self.robot.links \
-            and not self.robot.virtual.busy
+        if not (all_seen and self.step == Step.WAIT):
+            return False
+        r = self._cell()[0]
+        return not r.links and not r.virtual.busy
 
     def items(self) -> list[Item]:
         """All items (by index), with the conveyor model's telemetry in ``Item.model``."""
