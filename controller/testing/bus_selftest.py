@@ -40,6 +40,7 @@ import sys
 import threading
 import time
 from pathlib import Path
+from typing import Any
 
 from ..resources import data_path
 from .candump import CandumpCapture
@@ -77,7 +78,7 @@ def device_main(channel: str, out: Path) -> int:
     for n in (enc, servo):
         n.tpdo.read(from_od=True)
         n.rpdo.read(from_od=True)
-    seen = {"syncs": 0, "operational_syncs": 0, "counters": [], "rpdo1": 0,
+    seen: dict[str, Any] = {"syncs": 0, "operational_syncs": 0, "counters": [], "rpdo1": 0,
             "last_target": None, "emcy": [], "nmt_states": {ENCODER_ID: [], SERVO_ID: []}}
     lock = threading.Lock()
 

@@ -576,7 +576,7 @@ def sync_period_stats(frames: Iterable[FrameClass], *, overflow: int | None = No
     seen = [c for c in counters if c is not None]
     top = overflow if overflow is not None else (max(seen) if seen else None)
     gaps = []
-    if seen:
+    if top is not None:  # some SYNC has a counter
         if counters[0] is not None and not 1 <= counters[0] <= top:
             gaps.append(0)
         for i in range(1, len(counters)):

@@ -45,7 +45,7 @@ def wait_file(path: Path, procs: Iterable[subprocess.Popen], timeout_s: float,
     while not path.is_file():
         for p in procs:
             if p.poll() is not None:
-                raise RuntimeError(f"{p.args} exited with {p.returncode} before {path.name}")
+                raise RuntimeError(f"{p.args!r} exited with {p.returncode} before {path.name}")
         if running is not None and not running() and not path.is_file():
             raise RuntimeError(f"the writer of {path.name} ended before writing it")
         if time.monotonic() > t_end:
@@ -76,6 +76,8 @@ def sync_problems(frames: Sequence[FrameClass], *, period_s: float, overflow: in
     if cycles is not None and stats.count != cycles:
         out.append(f"{stats.count} SYNC on the bus, the report has {cycles} cycles: "
                    f"{stats.describe()}")
+    # two SYNC or more (checked above): the period figures exist
+    assert stats.period_median_s is not None and stats.period_mean_s is not None
     if abs(stats.period_median_s - period_s) > median_tol * period_s:
         out.append(f"SYNC period median off {period_s * 1e3:g} ms by more than "
                    f"{median_tol:.0%}: {stats.describe()}")

@@ -79,18 +79,18 @@ def cia306_forbids(mutant: mu.Mutant, base: str) -> str | None:
         if key in ("defaultvalue", "lowlimit", "highlimit"):
             v = value.strip()
             if v.lower() in ("nan", "xx", "rw ro", "$nodeid+x") or v == "1e300" \
-                    or (_int(v) is not None and not -(1 << 63) <= _int(v) < (1 << 64)):
+                    or ((iv := _int(v)) is not None and not -(1 << 63) <= iv < (1 << 64)):
                 return f"{mutant.path[1]}={value}"
         return None
     if key in _BOOL_KEYS or key.startswith("baudrate_"):
         return None if _int(value) in (0, 1) else f"{mutant.path[1]}={value} (0 or 1)"
     if key in _UNSIGNED_KEYS:
-        v = _int(value)
-        return None if v is not None and v >= 0 else f"{mutant.path[1]}={value}"
+        u = _int(value)
+        return None if u is not None and u >= 0 else f"{mutant.path[1]}={value}"
     if sec in ("mandatoryobjects", "optionalobjects", "manufacturerobjects") and key != \
             "supportedobjects":
-        v = _int(value)
-        return None if v is not None and 0 <= v <= 0xFFFF else f"{mutant.path[1]}={value}"
+        u = _int(value)
+        return None if u is not None and 0 <= u <= 0xFFFF else f"{mutant.path[1]}={value}"
     return None
 
 

@@ -47,7 +47,7 @@ from .vcan import MODES, pick_mode, resolve_mode, run_with_vcan, vcan_available
 from .vm import DEFAULT_CHANNEL, VmResult
 
 _AVAIL_KEY = pytest.StashKey[tuple]()
-_RUNNER_KEY = pytest.StashKey[object]()
+_RUNNER_KEY = pytest.StashKey["VcanRunner"]()
 
 HIL_HINT = ("hil: needs a real CAN bus: run with --can-interface socketcan --can-channel can0 "
             "[--can-bitrate 500000] [--bus-config rig.yaml] (see docs/hil.md)")
@@ -186,7 +186,7 @@ class HilBus:
 
     def bus_kwargs(self) -> dict:
         """Keyword arguments for ``can.Bus(**kw)`` / ``canopen.Network().connect(**kw)``."""
-        kw = {"interface": self.interface, "channel": self.channel}
+        kw: dict[str, object] = {"interface": self.interface, "channel": self.channel}
         if self.bitrate is not None:
             kw["bitrate"] = self.bitrate
         return kw
