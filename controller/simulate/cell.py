@@ -152,6 +152,25 @@ class CellScenario(SampledRun):
     source: Path | None = None
 
 
+def _req(node: Node, key: str) -> Node:
+    """A required section (missing: the ConfigError of ``section(required=True)``)."""
+    sec = node.section(key, required=True)
+    assert sec is not None
+    return sec
+
+
+@dataclass
+class _Trace:
+    """One robot's samples while running (see :class:`RobotTrace`)."""
+
+    pos: list[Any]
+    ori: list[Any]
+    imfs: list[int]
+    slave: list[int]
+    mf: list[str]
+    events: list[Event]
+
+
 def _sub(node: Node, drop: tuple[str, ...]) -> Node:
     """The node without the keys ``drop`` (read here), for a reader of the rest."""
     m = copy.copy(node.m)
@@ -185,15 +204,15 @@ def _group_frame(node: Node) -> CellFrameSpec:
     """A frame whose master is another robot's TCP (type 3)."""
     node.check_keys(("name", "group", "window", "limits", "world"))
     name = node.string("name")
-    g = node.section("group", required=True)
+    g = _req(node, "group")
     g.check_keys(("robot", "transform", "axis"))
-    transform = read_location(g, "transform", Location())
+    transform = read_location(g, "transform", Location()) or Location()
     axis = g.vector("axis", (0.0, 0.0, 1.0))
     if not any(axis):
         raise g.error("axis", "must not be the zero vector")
     window = Window.unlimited(4)
     if node.has("window"):
-        w = node.section("window")
+        w = _req(node, "window")
         w.check_keys(("upstream", "downstream"))
         lims = []
         for key in ("upstream", "downstream"):
@@ -255,7 +274,7 @@ def _cell_frame(node: Node, masters: dict[str, MasterSpec]) -> CellFrameSpec:
             raise node.error("scales_mm_per_unit", f"must give {nof} values, got {len(items)}")
         scales = [check_number(v, lambda m, line=line, path=path: node.ctx.error(m, line, path),
                                unit="mm per master unit") for v, line, path in items]
-    w = node.section("window", required=True)
+    w = _req(node, "window")
     w.check_keys(("upstream", "downstream"))
     lims = []
     for key in ("upstream", "downstream"):
@@ -313,13 +332,13 @@ def _cell_robot(node: Node, frames: dict[str, CellFrameSpec], duration: float
                       for v, line, path in tn.items(fname)]
                 if not ts:
                     raise tn.error(fname, "must list at least one item type")
-                types.append((fname, frozenset(ts)))
+                types.append((fname, frozenset(int(t) for t in ts)))
     if node.has("program") and node.has("master_frame"):
         raise node.error("master_frame", "give either a program or master_frame changes, "
                                          "not both")
     prog, pframe = None, None
     if node.has("program"):
-        pn = node.section("program")
+        pn = _req(node, "program")
         pframe = pn.string("frame")
         if pframe not in frames:
             raise pn.error("frame", f"unknown frame {pframe!r} (known: "
@@ -371,18 +390,18 @@ def parse_cell(root: Node, ctx, source: Path | None) -> CellScenario:
     """Validate a cell scenario (``root``: the scenario's top-level node)."""
     root.check_keys(("name", "duration_s", "tracker", "cell"))
     name = root.string("name", "")
-    params = tracker_params(root.section("tracker", required=True))
+    params = tracker_params(_req(root, "tracker"))
     duration = root.number("duration_s", lo=0.0, lo_open=True, unit="s")
     n = round(duration / params.sample_time_s)
     if n < 1 or n > MAX_SAMPLES:
         raise root.error("duration_s", f"the run has {n} samples: must be in "
                                        f"[1...{MAX_SAMPLES}]")
-    cn = root.section("cell", required=True)
+    cn = _req(root, "cell")
     cn.check_keys(("masters", "frames", "robots", "sensors"))
-    mn = cn.section("masters", required=True)
+    mn = _req(cn, "masters")
     masters: dict[str, MasterSpec] = {}
     for key in mn.m:
-        sec = mn.section(key, required=True)
+        sec = _req(mn, key)
         if sec.has("log"):
             raise sec.error("log", "encoder logs replay single-frame conveyor scenarios only")
         masters[str(key)] = read_master(sec)
@@ -479,6 +498,7 @@ def run_cell(sc: CellScenario) -> CellResult:
             fns.append((fn, sc.masters[mname]))
             per.append(cpu)
         s = fs.spec
+        assert s is not None   # (a frame with masters has its geometry)
         if s.type == LINEAR:
             frames[fs.name] = MovingFrame(
                 fs.name, srcs, directions=list(fs.directions),
@@ -512,6 +532,7 @@ def run_cell(sc: CellScenario) -> CellResult:
         r = rs.robot
         robot = robots[r.name]
         if rs.program is not None:
+            assert rs.program_frame is not None
             programs[r.name] = PickProgram(robot, frames[rs.program_frame], rs.program, r.slave)
     cell = ConveyorCell(list(frames.values()), list(robots.values()))
 
@@ -523,38 +544,38 @@ def run_cell(sc: CellScenario) -> CellResult:
             if ms.encoder is not None:
                 c = quantise_counts(v, ms.encoder.counts_per_unit, ms.encoder.modulus)
                 if ms.encoder.modulus:
-                    c = unwrap_counts(int(round(f.master[i].pos)), c, ms.encoder.modulus)
+                    c = unwrap_counts(int(round(f.source_values()[i])), c, ms.encoder.modulus)
                 v = float(c)
             out.append(v)
         return tuple(out)
 
     by_k: dict[int, list[tuple[SensorSpec, int]]] = {}
-    for s in sc.sensors:
-        for i, t in enumerate(s.times):
-            by_k.setdefault(int(math.floor(t / T + 1e-9)), []).append((s, i))
+    for sen in sc.sensors:
+        for i, t in enumerate(sen.times):
+            by_k.setdefault(int(math.floor(t / T + 1e-9)), []).append((sen, i))
     changes: dict[int, list[tuple[str, FrameChange]]] = {}
     for rs in sc.robots:
         for c in rs.changes:
             changes.setdefault(int(round(c.time_s / T)), []).append((rs.name, c))
     triggers: list[tuple[int, str, str, int, int]] = []
     extra: dict[str, list[Event]] = {name: [] for name in robots}
-    traces = {name: dict(pos=[r.setpoint.pos], ori=[r.setpoint.ori], imfs=[0], slave=[0],
-                         mf=[""], events=[]) for name, r in robots.items()}
-    mvals = {name: [tuple(s.pos for s in f.master)] for name, f in frames.items()}
+    traces = {name: _Trace([rg.setpoint.pos], [rg.setpoint.ori], [0], [0], [""], [])
+              for name, rg in robots.items()}
+    mvals = {name: [f.source_values()] for name, f in frames.items()}
     last: dict[str, tuple[Event, ...]] = dict.fromkeys(robots, ())
     for k in range(n):
-        for s, i in by_k.get(k, ()):
-            group = frames[s.frame].group_source is not None
-            vals = None if group else values_at(s.frame, s.times[i])
-            for rname in s.robots:
+        for sen, i in by_k.get(k, ()):
+            group = frames[sen.frame].group_source is not None
+            vals = None if group else values_at(sen.frame, sen.times[i])
+            for rname in sen.robots:
                 try:
-                    e = robots[rname].trigger(frames[s.frame], values=vals, dr_mm=s.dr_mm[i],
-                                              item_type=s.types[i],
-                                              offset=s.offset if group else None)
+                    e = robots[rname].trigger(frames[sen.frame], values=vals, dr_mm=sen.dr_mm[i],
+                                              item_type=sen.types[i],
+                                              offset=sen.offset if group else None)
                 except TriggerBufferFull as exc:
-                    extra[rname].append(Event(k, "trigger_rejected", s.frame, message=str(exc)))
+                    extra[rname].append(Event(k, "trigger_rejected", sen.frame, message=str(exc)))
                     continue
-                triggers.append((k, rname, s.frame, e.id, e.item_type))
+                triggers.append((k, rname, sen.frame, e.id, e.item_type))
         for rname, c in changes.get(k, ()):
             try:
                 robots[rname].set_master_frame(frames[c.frame] if c.frame else None)
@@ -566,24 +587,24 @@ def run_cell(sc: CellScenario) -> CellResult:
         for rname, out in outs.items():
             tr = traces[rname]
             last[rname] = out.events
-            tr["events"].extend(extra[rname])
+            tr.events.extend(extra[rname])
             extra[rname].clear()
-            tr["events"].extend(out.events)
-            tr["pos"].append(out.setpoint.pos)
-            tr["ori"].append(out.setpoint.ori)
-            tr["imfs"].append(int(out.imfs))
-            tr["slave"].append(out.slave)
-            tr["mf"].append(out.master_frame or "")
+            tr.events.extend(out.events)
+            tr.pos.append(out.setpoint.pos)
+            tr.ori.append(out.setpoint.ori)
+            tr.imfs.append(int(out.imfs))
+            tr.slave.append(out.slave)
+            tr.mf.append(out.master_frame or "")
         for name, f in frames.items():
-            mvals[name].append(tuple(s.pos for s in f.master))
+            mvals[name].append(f.source_values())
     rt = {}
-    for name, r in robots.items():
+    for name, rg in robots.items():
         tr = traces[name]
-        prog = programs.get(name)
-        rt[name] = RobotTrace(name, np.array(tr["pos"]), np.array(tr["ori"]),
-                              np.array(tr["imfs"]), np.array(tr["slave"]), tr["mf"],
-                              tr["events"], [r.records[i] for i in sorted(r.records)],
-                              dict(prog.picks) if prog is not None else {}, r)
+        pg = programs.get(name)
+        rt[name] = RobotTrace(name, np.array(tr.pos), np.array(tr.ori), np.array(tr.imfs),
+                              np.array(tr.slave), tr.mf, tr.events,
+                              [rg.records[i] for i in sorted(rg.records)],
+                              dict(pg.picks) if pg is not None else {}, rg)
     return CellResult(sc, np.arange(n + 1) * T, {k: np.array(v) for k, v in mvals.items()},
                       rt, frames, triggers)
 
@@ -645,6 +666,7 @@ def format_cell_summary(result: CellResult) -> str:
             lines.append(f"Frame      '{fs.name}' group: the TCP of robot '{fs.group.robot}' "
                          f"(4 DOFs: dx, dy, dz, angle about {fs.group.axis})")
             continue
+        assert fs.spec is not None
         unit = "mm" if fs.spec.type == LINEAR else "deg"
         w = fs.window
         win = ", ".join(f"{u:g}...{d:g}" for u, d in zip(w.upstream, w.downstream))
