@@ -229,10 +229,38 @@ def load_marked(text: str, file: str) -> Any:
         loader.dispose()
 
 
+def closest(key: Any, known: Iterable[Any]) -> str | None:
+    """The known key closest to ``key`` (a likely misspelling of it), or None."""
+    close = difflib.get_close_matches(str(key), [str(k) for k in known], n=1, cutoff=0.6)
+    return close[0] if close else None
+
+
 def suggest(key: str, known: Iterable[str]) -> str:
     """``" (did you mean 'x'?)"`` for the closest known key, or ``""``."""
-    close = difflib.get_close_matches(str(key), [str(k) for k in known], n=1, cutoff=0.6)
-    return f" (did you mean '{close[0]}'?)" if close else ""
+    close = closest(key, known)
+    return f" (did you mean '{close}'?)" if close else ""
+
+
+# -- the marks of a loaded value (plain values from Python have none: the defaults) ------
+def is_marked(value: Any) -> bool:
+    """True for a mapping or list read from a file (it has line marks)."""
+    return isinstance(value, (MarkedMap, MarkedList))
+
+
+def key_line(mapping: Any, key: Any, default: int | None = None) -> int | None:
+    """The line of ``key`` in a loaded mapping (``default`` without marks)."""
+    return getattr(mapping, "key_lines", {}).get(key, default)
+
+
+def value_line(mapping: Any, key: Any, default: int | None = None) -> int | None:
+    """The line of the value of ``key`` in a loaded mapping (``default`` without marks)."""
+    return getattr(mapping, "value_lines", {}).get(key, default)
+
+
+def item_lines(seq: Any, default: int | None = None) -> list[int | None]:
+    """The line of each item of a loaded list (``default`` for each without marks)."""
+    lines = getattr(seq, "item_lines", None)
+    return list(lines) if lines else [default] * len(seq)
 
 
 def _type_name(value: Any) -> str:
@@ -278,10 +306,10 @@ class Section:
         return f"{self.path}.{key}" if self.path else str(key)
 
     def key_line(self, key: Any) -> int | None:
-        return getattr(self.data, "key_lines", {}).get(key, self.line)
+        return key_line(self.data, key, self.line)
 
     def value_line(self, key: Any) -> int | None:
-        return getattr(self.data, "value_lines", {}).get(key, self.key_line(key))
+        return value_line(self.data, key, self.key_line(key))
 
     def error(self, key: Any, message: str, *, at_value: bool = True) -> ConfigError:
         line = self.value_line(key) if at_value else self.key_line(key)
@@ -403,7 +431,7 @@ class Section:
             return [] if value is None else [(v, self.line, self.key_path(key)) for v in value]
         if not isinstance(value, list):
             raise self.error(key, f"must be a list, not {_type_name(value)}")
-        lines = getattr(value, "item_lines", [self.value_line(key)] * len(value))
+        lines = item_lines(value, self.value_line(key))
         return [(v, line, f"{self.key_path(key)}[{i}]")
                 for i, (v, line) in enumerate(zip(value, lines))]
 

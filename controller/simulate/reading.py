@@ -2,16 +2,17 @@
 conveyor and cell scenarios): a mapping node with file, line and dotted key path, numbers
 with ranges and units, the tracker parameters, the segment master and the sampled-run base.
 
-The YAML itself is read by :mod:`controller.yamlmarks` (line numbers of keys, values and
-list items); every problem is a :class:`controller.errors.ConfigError` naming the file, the
-line and the key.  Public names are used by :mod:`.scenario`, :mod:`.conveyor` and
-:mod:`.cell`; none of those imports another's private names.
+The YAML itself is read by :mod:`controller.yamlmarks`, and so are its marks: the lines of
+keys, values and list items (``key_line``, ``value_line``, ``item_lines``) and the closest
+known key of a misspelt one (``closest``) come from there, as for bus.yml.  Every problem
+is a :class:`controller.errors.ConfigError` naming the file, the line and the key.  Public
+names are used by :mod:`.scenario`, :mod:`.conveyor` and :mod:`.cell`; none of those
+imports another's private names.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import difflib
 import importlib.util
 import math
 import re
@@ -20,6 +21,7 @@ from pathlib import Path
 from typing import Any, Iterable
 
 from ..errors import ConfigError, ParameterError
+from ..yamlmarks import closest, is_marked, item_lines, key_line, value_line
 from ..tracking import PLANNERS, Limits, Mode, Rates, SoftMcOptions, TrackerParams
 from ..tracking.types import DEFAULT_ROT, DEFAULT_TRANS
 
@@ -65,29 +67,25 @@ class _Node:
         return f"{self.path}.{key}" if self.path else key
 
     def line_of(self, key: str) -> int | None:
-        lines = getattr(self.m, "value_lines", None)
-        if lines and key in lines:
-            return lines[key]
-        return self.line
+        return value_line(self.m, key, self.line)
 
     def error(self, key: str, message: str) -> ConfigError:
         return self.ctx.error(message, self.line_of(key), self.key(key))
 
     def check_keys(self, allowed: Iterable[str]) -> None:
         allowed = list(allowed)
-        key_lines = getattr(self.m, "key_lines", {})
         for k in self.m:
             if k in allowed:
                 continue
-            close = difflib.get_close_matches(str(k), allowed, n=1, cutoff=0.6)
-            hint = f"; did you mean '{close[0]}'?" if close else ""
+            close = closest(k, allowed)
+            hint = f"; did you mean '{close}'?" if close else ""
             where = f"'{self.path}'" if self.path else "the scenario"
             raise self.ctx.error(
                 f"unknown key in {where}{hint} (valid keys: {', '.join(allowed)})",
-                key_lines.get(k, self.line), self.key(str(k)))
+                key_line(self.m, k, self.line), self.key(str(k)))
 
     def _from_file(self) -> bool:
-        return hasattr(self.m, "key_lines")
+        return is_marked(self.m)
 
     def has(self, key: str) -> bool:
         # a file's `key:` left empty (null) is there, to be refused by raw(); in a mapping
@@ -151,15 +149,14 @@ class _Node:
             if required:
                 self.raw(key)
             return None
-        key_line = getattr(self.m, "key_lines", {}).get(key, self.line)
-        return _Node(self.ctx, self.m[key], self.key(key), key_line)
+        return _Node(self.ctx, self.m[key], self.key(key), key_line(self.m, key, self.line))
 
     def items(self, key: str) -> list[tuple[Any, int | None, str]]:
         """The items of a list value: (value, line, path)."""
         value = self.raw(key)
         if not isinstance(value, list):
             raise self.error(key, f"must be a list, got {_describe(value)}")
-        lines = getattr(value, "item_lines", None) or [self.line_of(key)] * len(value)
+        lines = item_lines(value, self.line_of(key))
         return [(v, ln, f"{self.key(key)}[{i}]") for i, (v, ln) in enumerate(zip(value, lines))]
 
 
@@ -322,8 +319,8 @@ def _tracker_params(node: _Node) -> TrackerParams:
     kw["sample_time_s"] = node.number("sample_time_s", unit="s")
     planner = node.string("planner")
     if planner not in PLANNERS:
-        close = difflib.get_close_matches(planner, list(PLANNERS), n=1)
-        hint = f"; did you mean '{close[0]}'?" if close else ""
+        close = closest(planner, PLANNERS)
+        hint = f"; did you mean '{close}'?" if close else ""
         raise node.error("planner", f"unknown planner {planner!r}{hint} "
                                     f"(one of {', '.join(sorted(PLANNERS))})")
     module = PLANNERS[planner].split(":")[0]

@@ -101,7 +101,6 @@ re-raised as a ConfigError located at the offending value.
 from __future__ import annotations
 
 import csv
-import difflib
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -109,7 +108,7 @@ from typing import Any
 
 from ..errors import ConfigError
 from ..tracking import MotionState, TrackerParams
-from ..yamlmarks import MarkedList, MarkedMap, load_marked, read_text
+from ..yamlmarks import MarkedList, MarkedMap, closest, load_marked, read_text
 from .master import SegmentError, build_profile
 from .reading import (MAX_POSITION_MM, MAX_SAMPLES, MISSING, CsvMaster, Ctx, EncoderSpec,
                       Node, SampledRun, Segment, SegmentMaster, check_number, describe,
@@ -196,8 +195,8 @@ def _csv_master(node: _Node) -> CsvMaster:
         c = c.strip().lower()
         c = _CSV_ALIASES.get(c, c)
         if c not in _CSV_COLUMNS:
-            close = difflib.get_close_matches(c, _CSV_COLUMNS, n=1)
-            hint = f"; did you mean '{close[0]}'?" if close else ""
+            close = closest(c, _CSV_COLUMNS)
+            hint = f"; did you mean '{close}'?" if close else ""
             raise ConfigError(f"unknown column{hint} (columns: {', '.join(_CSV_COLUMNS)})",
                               file=file, line=header_line, key=c)
         if c in columns:
