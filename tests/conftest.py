@@ -43,3 +43,28 @@ def linear():
 def rotary():
     """The ConveyorResult of examples/conveyor_rotary.yaml (simulated once per session)."""
     return _conveyor_example("conveyor_rotary.yaml")
+
+
+@pytest.fixture(scope="session")
+def fmu2_path(tmp_path_factory):
+    """The session's CanTracker.fmu (the folder test_fmu.py and test_fmu_cosim.py use too)."""
+    pytest.importorskip("pythonfmu")
+    from controller.fmu import build_conveyor_fmu, build_tracker_fmu
+
+    d = tmp_path_factory.getbasetemp() / "fmu-build"
+    if not (d / "CanConveyor.fmu").is_file():
+        build_tracker_fmu(d)
+        build_conveyor_fmu(d)
+    return d / "CanTracker.fmu"
+
+
+@pytest.fixture(scope="session")
+def fmu3_path(tmp_path_factory):
+    """The session's CanTracker3.fmu (the folder test_fmu3.py uses too)."""
+    pytest.importorskip("pythonfmu3")
+    from controller.fmu import build_tracker_fmu3
+
+    d = tmp_path_factory.getbasetemp() / "fmu3-build"
+    if not (d / "CanTracker3.fmu").is_file():
+        build_tracker_fmu3(d)
+    return d / "CanTracker3.fmu"

@@ -30,7 +30,8 @@ from fmpy.validation import validate_fmu
 
 from controller.fmu import build_conveyor_fmu, build_tracker_fmu
 from controller.fmu.engine import VARIABLES, tracker_params
-from controller.fmu.runner import FmuTracker, circle_scenario, conveyor_scenario, core_run
+from controller.fmu.runner import (FmuTracker, bundled_module, circle_scenario,
+                                   conveyor_scenario, core_run)
 from controller.tracking import MotionState, Tracker, TrackerParams
 
 REPO = Path(__file__).resolve().parents[1]
@@ -81,19 +82,24 @@ def test_build_layout(tracker_fmu):
         module = zf.read("resources/slavemodule.txt").decode().strip()
     assert re.fullmatch(r"cantracker_[0-9a-f]{12}", module)
     assert f"resources/{module}.py" in names
-    for f in ("controller/__init__.py", "controller/errors.py", "controller/tracking/__init__.py",
-              "controller/tracking/tracker.py", "controller/tracking/softmc.py",
-              "controller/fmu/engine.py", "pythonfmu/fmi2slave.py"):
-        assert f"resources/{f}" in names, f
+    # the core lives in a private package named after the script (no host can shadow it)
+    private = f"resources/_{module}/"
+    for f in ("__init__.py", "errors.py", "tracking/__init__.py", "tracking/tracker.py",
+              "tracking/softmc.py", "fmu/engine.py", "fmu/runtime.py", "pythonfmu/fmi2slave.py"):
+        assert private + f in names, f
+    assert not any(n.startswith("resources/controller/") for n in names)
+    script = zipfile.ZipFile(tracker_fmu).read(f"resources/{module}.py").decode()
+    assert not re.search(r"^(from|import) (controller|pythonfmu)\b", script, re.M)
+    assert f"from _{module}.pythonfmu import" in script
     assert "documentation/index.html" in names
     # nothing binary of ours: only pythonfmu's wrapper
     binaries = {n for n in names if n.endswith((".so", ".dll", ".dylib", ".pyd"))}
     assert binaries == {"binaries/linux64/CanTracker.so", "binaries/win64/CanTracker.dll"}
     # the FMU does not carry the rest of the package (CLI, simulator, FMU build/check code)
-    assert {n for n in names if n.startswith("resources/controller/fmu/")} == {
-        "resources/controller/fmu/__init__.py", "resources/controller/fmu/engine.py"}
-    assert not any(n.startswith(("resources/controller/simulate", "resources/controller/cli",
-                                 "resources/controller/motion")) for n in names)
+    assert {n for n in names if n.startswith(private + "fmu/")} == {
+        private + "fmu/__init__.py", private + "fmu/engine.py", private + "fmu/runtime.py"}
+    assert not any(n.startswith((private + "simulate", private + "cli", private + "motion"))
+                   for n in names)
 
 
 def test_model_description_contract(tracker_fmu):
@@ -103,10 +109,13 @@ def test_model_description_contract(tracker_fmu):
     assert cs.canGetAndSetFMUstate and cs.canSerializeFMUstate
     assert not cs.canBeInstantiatedOnlyOncePerProcess
     assert float(md.defaultExperiment.stepSize) == 0.001
+    assert float(md.defaultExperiment.stopTime) == 1.0
+    (mode_type,) = [t for t in md.typeDefinitions if t.name == "Mode"]
+    assert [(i.name, int(i.value)) for i in mode_type.items] == [("absolute", 3), ("relative", 5)]
     v = {x.name: x for x in md.modelVariables}
     expect = {
         "sample_time": ("parameter", "fixed", "Real", 0.001, "s"),
-        "mode": ("parameter", "fixed", "Integer", 3, None),
+        "mode": ("parameter", "fixed", "Enumeration", 3, None),  # items 3, 5 (see below)
         "planner": ("parameter", "fixed", "Integer", 1, None),
         "vel_sync": ("parameter", "tunable", "Real", 2000, "mm/s"),
         "acc_sync": ("parameter", "tunable", "Real", 20000, "mm/s2"),
@@ -352,9 +361,9 @@ def test_refused_step_size(tracker_fmu, caplog):
                                      communicationStepSize=bad)
                 assert exc.value.status == 2  # fmi2Discard
         msg = fmu.messages[-1]
-        assert msg[1] == "logStatusError" and "whole multiple" in msg[2]
-        assert "sample_time=0.001" in msg[2] and "2.0004" in msg[2]
-        assert any("whole multiple" in r.getMessage() for r in caplog.records)
+        assert msg[1] == "logStatusDiscard" and "whole multiples" in msg[2]
+        assert "sample_time=0.001 s" in msg[2] and "0.0020004" in msg[2]
+        assert any("whole multiples" in r.getMessage() for r in caplog.records)
         # not failed: steps that are multiples (within the tolerance) go on
         m = MotionState((5.0, 1.0, 0.0), (300.0, 20.0, 0.0), (100.0, 0.0, 0.0), 2.0, 3.0, 0.0)
         fmu.step(m, True, T * (1 + 1e-12))  # 1 sample
@@ -380,12 +389,14 @@ def test_exception_in_step_is_logged_with_traceback(tracker_fmu, monkeypatch, ca
         fmu.run(scenario, 150, T)
         saved = fmu.slave.getFMUstate()
         t_saved = fmu.time
-        real_update = Tracker.update
+        # the FMU runs its private copy of the core: break that one
+        fmu_tracker = bundled_module(tracker_fmu, "tracking.tracker").Tracker
+        real_update = fmu_tracker.update
 
         def broken(self, master):
             raise RuntimeError("injected failure in Tracker.update")
 
-        monkeypatch.setattr(Tracker, "update", broken)
+        monkeypatch.setattr(fmu_tracker, "update", broken)
         m, e = scenario(150)
         with caplog.at_level(logging.ERROR, logger="cantrack.fmu"):
             with pytest.raises(FMICallException) as exc:
@@ -397,7 +408,7 @@ def test_exception_in_step_is_logged_with_traceback(tracker_fmu, monkeypatch, ca
         assert "RuntimeError: injected failure in Tracker.update" in text
         assert "unknown error" not in text
         assert any("injected failure" in r.getMessage() for r in caplog.records)
-        monkeypatch.setattr(Tracker, "update", real_update)
+        monkeypatch.setattr(fmu_tracker, "update", real_update)
         with pytest.raises(FMICallException):
             fmu.step(m, e, T)  # refused: failed earlier
         assert "failed earlier" in fmu.messages[-1][2]
@@ -432,9 +443,11 @@ def test_invalid_tunable_at_engage_is_refused_and_repeatable(tracker_fmu):
         with pytest.raises(FMICallException) as exc:
             fmu.step(m, e, T)
         assert exc.value.status == 2
-        text = fmu.messages[-1][2]
-        assert "vel" in text and "-5.0" in text and "> 0" in text and "Traceback" in text
-        fmu.time -= T  # the step was not done: repeat it with a valid value
+        status, category, text = fmu.messages[-1]
+        assert (status, category) == (2, "logStatusDiscard")
+        assert "vel_sync=-5.0 mm/s is outside its declared range [1e-09, inf]" in text
+        assert "Traceback" not in text and "\n" not in text
+        # the step was not done (fmu.time did not advance): repeat it with a valid value
         fmu.set({"vel_sync": 2000.0})
         got = fmu.run(scenario, 400, T, first_step=50)
     ref = core_run(params_for(planner=0), scenario, 450)
@@ -442,19 +455,22 @@ def test_invalid_tunable_at_engage_is_refused_and_repeatable(tracker_fmu):
 
 
 def test_invalid_fixed_parameter_is_logged_and_every_step_refused(tracker_fmu, caplog):
-    """Not fmi2Fatal (pythonfmu then crashes on fmi2FreeInstance): logged at initialisation,
-    every step refused with the message; the instance can still be freed."""
+    """Not fmi2Fatal (pythonfmu then crashes on fmi2FreeInstance): one line at
+    exitInitializationMode naming the value and its declared range, no traceback; every step
+    refused with the message; the instance can still be freed."""
     with caplog.at_level(logging.ERROR, logger="cantrack.fmu"):
         with FmuTracker(tracker_fmu, start_values={"sample_time": 0.5}) as fmu:
-            text = fmu.messages[-1][2]
-            assert "initialisation failed" in text and "Traceback" in text
-            assert "sample_time_s (=0.5) must be in [1e-05...0.1] s" in text
+            status, category, text = fmu.messages[-1]
+            assert (status, category) == (3, "logStatusError")
+            assert text == ("tracker: exitInitializationMode refused the parameters: "
+                            "sample_time=0.5 s is outside its declared range [1e-05, 0.1]")
             for _ in range(2):
                 with pytest.raises(FMICallException) as exc:
                     fmu.step(MotionState(), False, 0.5)
-                assert exc.value.status == 2
-                assert "sample_time_s (=0.5)" in fmu.messages[-1][2]
-    assert any("sample_time_s (=0.5)" in r.getMessage() for r in caplog.records)
+                assert exc.value.status in (2, 3)
+                assert "sample_time=0.5 s" in fmu.messages[-1][2]
+                assert "Traceback" not in fmu.messages[-1][2]
+    assert any("sample_time=0.5 s" in r.getMessage() for r in caplog.records)
 
 
 def test_unusable_serialized_state_is_refused_without_crash(tracker_fmu):
@@ -508,8 +524,9 @@ sys.meta_path.insert(0, _Hide())
 
 
 def test_bundled_core_runs_standalone(tracker_fmu, tmp_path):
-    """In a process where the installed ``controller`` is hidden, the FMU imports the copy
-    in its resources folder and gives the same outputs as the core here."""
+    """In a process where the installed ``controller`` cannot be imported, the FMU runs its
+    private copy (resources/_cantracker_<hash>/) and gives the same outputs as the core here;
+    it leaves no ``controller`` module in the host."""
     scenario = conveyor_scenario(T)
     planner = PLANNERS[-1]
     ref = core_run(params_for(planner=planner), scenario, 600)
@@ -531,8 +548,10 @@ def test_bundled_core_runs_standalone(tracker_fmu, tmp_path):
         s.enterInitializationMode()
         s.setInteger([vr["planner"]], [{planner}])
         s.exitInitializationMode()
-        import controller
-        assert controller.__file__.startswith(str(d)), controller.__file__
+        assert "controller" not in sys.modules
+        private = [m for m in sys.modules if m.startswith("_cantracker_")]
+        assert private and all(sys.modules[m].__file__.startswith(str(d)) for m in private
+                               if getattr(sys.modules[m], "__file__", None)), private
         exp = json.load(open({str(expected)!r}))
         ins = ["master_x", "master_y", "master_z", "master_c", "master_vx", "master_vy",
                "master_vz", "master_vc", "master_ax", "master_ay", "master_az", "master_ac"]
@@ -548,12 +567,12 @@ def test_bundled_core_runs_standalone(tracker_fmu, tmp_path):
             got = [repr(x) for x in s.getReal([vr[n] for n in outs])]
             ints = s.getInteger([vr[n] for n in ("imfs", "state", "error")])
             assert got == exp["reals"][k] and ints == exp["ints"][k], (k, got, exp["reals"][k])
-        print("OK", controller.__file__)
+        print("OK", sys.modules[private[0]].__file__)
     """)
     proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
                           cwd=tmp_path, timeout=120)
     assert proc.returncode == 0, proc.stdout + proc.stderr
-    assert "OK" in proc.stdout and "/resources/controller/__init__.py" in proc.stdout
+    assert "OK" in proc.stdout and "/resources/_cantracker_" in proc.stdout
 
 
 def test_build_from_a_regular_install(tmp_path):

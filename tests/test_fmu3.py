@@ -18,6 +18,7 @@ from fmpy.validation import validate_fmu
 from controller.fmu import build_tracker_fmu3
 from controller.fmu.engine import VARIABLES, tracker_params
 from controller.fmu.runner import (
+    bundled_module,
     MASTER_INPUTS,
     OUTPUT_INTS,
     OUTPUT_REALS,
@@ -25,7 +26,6 @@ from controller.fmu.runner import (
     core_run,
     master_values,
 )
-from controller.tracking import Tracker
 
 T = 0.001
 DEFAULTS = {row[0]: row[4] for row in VARIABLES if row[2] == "parameter"}
@@ -135,7 +135,7 @@ def test_fmi3_exception_gives_error_with_traceback(fmu3, monkeypatch, caplog):
         def broken(self, master):
             raise RuntimeError("injected failure")
 
-        monkeypatch.setattr(Tracker, "update", broken)
+        monkeypatch.setattr(bundled_module(fmu3, "tracking.tracker").Tracker, "update", broken)
         with caplog.at_level(logging.DEBUG, logger="cantrack.fmu"):
             with pytest.raises(FMICallException) as exc:
                 f.run(conveyor_scenario(T), 10, 1)

@@ -10,12 +10,15 @@ What goes into ``CanTracker.fmu`` (FMI 2.0 Co-Simulation):
   under a content-hashed module name.  Python caches imported modules by name, so two FMUs
   whose scripts share a name cannot be used in one process; the hash (of the script and the
   bundled core) makes the name unique per content.
-- ``resources/controller/{__init__,errors}.py`` and ``resources/controller/tracking/*.py``:
-  the tracker core (pure Python; it needs numpy, and ruckig for planner 1), and
-  ``resources/controller/fmu/engine.py`` (variables, stepping, errors, FMU state) with a stub
-  ``controller/fmu/__init__.py`` (the build/check code is not bundled).
-- ``resources/pythonfmu/*.py``: pythonfmu's Python runtime (added by pythonfmu's builder) and
-  ``binaries/{linux64,win64}/CanTracker.{so,dll}``: pythonfmu's FMI wrapper, which runs the
+- ``resources/_<prefix>_<hash>/``: the FMU's private package, everything the script imports:
+  the tracker core (``__init__``, ``errors``, ``tracking/``; it needs numpy, and ruckig for
+  planner 1), ``fmu/engine.py`` (variables, stepping, errors, FMU state) and
+  ``fmu/runtime.py`` (the dependency checks at instantiation) with a stub
+  ``fmu/__init__.py`` (the build/check code is not bundled), and pythonfmu's Python part
+  (``pythonfmu/``).  The build rewrites the script's ``from controller...`` and
+  ``from pythonfmu...`` imports to this package (``_privatise``); the bundled modules import
+  each other relatively.  The name carries the hash, so no host package can shadow it.
+- ``binaries/{linux64,win64}/CanTracker.{so,dll}``: pythonfmu's FMI wrapper, which runs the
   slave in the importing process's Python (it does not link libpython).
 - ``documentation/index.html``: variables, semantics and what the importing tool needs.
 
@@ -28,6 +31,7 @@ import contextlib
 import hashlib
 import html
 import importlib
+import re
 import sys
 import tempfile
 import zipfile
@@ -51,11 +55,11 @@ Binaries: linux64 and win64 (pythonfmu's wrapper; nothing binary of cantrack is 
 
 Python hosts (fmpy, libcosimpy, ...): the interpreter of the host process is used (tested:
 CPython 3.11).  numpy >= 1.24 must be importable, and ruckig >= 0.12 for planner=1 (the
-default "optimal" planner; planner=0 "softmc" needs numpy only).  pythonfmu's Python part and
-the tracker core (package `controller`: tracking, errors, fmu/engine) are bundled in
-resources/ and need not be installed.  Python caches modules by name: if a package called
-`controller` is already imported in the host (e.g. an installed cantrack), the FMU runs that
-one, not its bundled copy -- keep one cantrack version per process.
+default "optimal" planner; planner=0 "softmc" needs numpy only).  Instantiation fails with a
+message naming the Python and the pip command when numpy is missing, and warns when ruckig
+is (planner=1 is then refused at exitInitializationMode).  The tracker core and pythonfmu's
+Python part are bundled in resources/ under a private package name (_cantracker_<hash>):
+packages of the host, also one called `controller`, do not interfere.
 
 Non-Python hosts on Linux (a C/C++ master, OMSimulator, ...): the wrapper does not link
 libpython, so loading it fails with "undefined symbol: _Py_NoneStruct" (pythonfmu #202).
@@ -86,32 +90,66 @@ def _require_pythonfmu():
 
 
 def core_files() -> list[tuple[Path, str]]:
-    """The tracker core bundled into the FMU: (source file, path relative to resources/)."""
+    """The tracker core bundled into the FMU: (source file, path inside the private package).
+
+    All of it uses relative imports only, so it runs under the FMU's private package name.
+    """
     root = Path(controller.__file__).resolve().parent
-    files = [(root / "__init__.py", "controller/__init__.py"),
-             (root / "errors.py", "controller/errors.py")]
+    files = [(root / "__init__.py", "__init__.py"), (root / "errors.py", "errors.py")]
     tracking = root / "tracking"
     if not (tracking / "__init__.py").is_file():
         raise FmuBuildError(f"{tracking}: the tracker core (controller.tracking) is missing")
-    files += [(p, f"controller/tracking/{p.name}") for p in sorted(tracking.glob("*.py"))]
-    files.append((_HERE / "engine.py", "controller/fmu/engine.py"))
+    files += [(p, f"tracking/{p.name}") for p in sorted(tracking.glob("*.py"))]
+    files += [(_HERE / "engine.py", "fmu/engine.py"), (_HERE / "runtime.py", "fmu/runtime.py")]
     for src, _ in files:
         if not src.is_file():
             raise FmuBuildError(f"{src}: missing file of the tracker core")
     return files
 
 
-#: ``controller/fmu/__init__.py`` inside the FMU: only the engine is bundled, not the build
-#: and check code (which would need pythonfmu and fmpy in the importing tool)
+#: ``fmu/__init__.py`` of the private package: only the engine and the runtime checks are
+#: bundled, not the build and check code (which would need pythonfmu and fmpy in the host)
 _FMU_PACKAGE_STUB = (b'"""The FMU runtime subset of controller.fmu (bundled by '
-                     b'cantrack fmu build): the engine."""\n')
+                     b'cantrack fmu build): engine and runtime checks."""\n')
+_PACKAGE_STUB = b'"""Private package of a cantrack FMU (bundled by cantrack fmu build)."""\n'
+
+#: a line of a slave script importing the installed packages that the build points at the
+#: FMU's private package instead
+_ABSOLUTE_IMPORT = re.compile(r"^from (controller|pythonfmu3?)\b", re.M)
 
 
-def _bundle() -> list[tuple[str, bytes]]:
-    """(path relative to resources/, content) of everything bundled next to the script."""
-    files = [(arc, src.read_bytes()) for src, arc in core_files()]
-    files.append(("controller/fmu/__init__.py", _FMU_PACKAGE_STUB))
+def _python_part(package: str) -> list[tuple[str, bytes]]:
+    """pythonfmu's (or pythonfmu3's) Python part: (path inside the private package, content).
+
+    Bundled privately so that a host which imported another pythonfmu version first still
+    gets the one matching the FMU's binary.  Its modules import each other relatively."""
+    mod = importlib.import_module(package)
+    root = Path(mod.__file__).resolve().parent
+    return [(f"{package}/{p.name}", p.read_bytes()) for p in sorted(root.glob("*.py"))]
+
+
+def _bundle(with_core: bool, fmi: str) -> list[tuple[str, bytes]]:
+    """(path inside the private package, content) of everything bundled next to the script."""
+    if with_core:
+        files = [(arc, src.read_bytes()) for src, arc in core_files()]
+        files.append(("fmu/__init__.py", _FMU_PACKAGE_STUB))
+    else:
+        files = [("__init__.py", _PACKAGE_STUB)]
+    files += _python_part(fmi)
     return sorted(files)
+
+
+def _privatise(source: bytes, private: str, path: Path) -> bytes:
+    """The slave script with its absolute imports of ``controller`` and pythonfmu pointed at
+    the private package (``from controller.fmu.runtime`` -> ``from _x.fmu.runtime``,
+    ``from pythonfmu`` -> ``from _x.pythonfmu``)."""
+    text = source.decode()
+    if re.search(r"^import (controller|pythonfmu)", text, re.M):
+        raise FmuBuildError(f"{path}: use 'from ... import' for controller/pythonfmu (the "
+                            f"build rewrites those to the FMU's private package)")
+    text = _ABSOLUTE_IMPORT.sub(
+        lambda m: f"from {private}" if m[1] == "controller" else f"from {private}.{m[1]}", text)
+    return text.encode()
 
 
 def _require_pythonfmu3():
@@ -138,17 +176,27 @@ def _slave_source(module: str) -> bytes:
 
 
 @contextlib.contextmanager
-def _clean_import_state():
-    """pythonfmu's builder imports the script and leaves it in sys.modules / sys.path."""
+def _clean_import_state(module_name: str):
+    """pythonfmu's builder imports the script (``module_name``) and its private package
+    (``_<module_name>``) and leaves them in sys.modules / sys.path.  An instance of an FMU
+    with the same content may have imported them already (its own copy): those are set
+    aside during the build and put back afterwards."""
     saved_path = list(sys.path)
-    saved_modules = set(sys.modules)
+    private = f"_{module_name}"
+
+    def ours(name: str) -> bool:
+        return name in (module_name, private) or name.startswith(private + ".")
+
+    aside = {n: m for n, m in sys.modules.items() if ours(n)}
+    for name in aside:
+        del sys.modules[name]
     try:
         yield
     finally:
         sys.path[:] = saved_path
-        for name in set(sys.modules) - saved_modules:
-            if name.startswith(("cantracker_", "cantracker3_", "canconveyor_")):
-                del sys.modules[name]
+        for name in [n for n in sys.modules if ours(n)]:
+            del sys.modules[name]
+        sys.modules.update(aside)
         importlib.invalidate_caches()
 
 
@@ -180,33 +228,45 @@ def _build(model: str, slave_module: str, prefix: str, dest_dir: str | Path,
     dest_dir = Path(dest_dir)
     dest_dir.mkdir(parents=True, exist_ok=True)
     source = _slave_source(slave_module)
-    core = _bundle() if bundle_core else []
-    digest = _digest([(f"{slave_module}.py", source)] + core)
+    bundle = _bundle(bundle_core, "pythonfmu3" if fmi3 else "pythonfmu")
+    digest = _digest([(f"{slave_module}.py", source)] + bundle)
     module_name = f"{prefix}_{digest}"
+    # the private package: resources/_<prefix>_<hash>/ (pythonfmu puts resources/ on sys.path;
+    # the name is unique per content: no host package can shadow it, two builds never share it)
+    private = f"_{module_name}"
     target = dest_dir / f"{model}.fmu"
-    slave = importlib.import_module(f"controller.fmu.{slave_module}")
-    with tempfile.TemporaryDirectory(prefix="cantrack_fmu_") as tmp, _clean_import_state():
+    slave_doc = importlib.import_module(f"controller.fmu.{slave_module}").__doc__ or ""
+    if bundle_core:  # the tracker: variables and semantics are the engine's
+        from . import engine
+        variables = engine.VARIABLES
+        summary = slave_doc + "\n" + (engine.__doc__ or "")
+    else:
+        slave = importlib.import_module(f"controller.fmu.{slave_module}")
+        variables, summary = slave.VARIABLES, slave_doc
+    with tempfile.TemporaryDirectory(prefix="cantrack_fmu_") as tmp, \
+            _clean_import_state(module_name):
         tmp = Path(tmp)
         script_dir = tmp / "script"
         script_dir.mkdir()
         script = script_dir / f"{module_name}.py"
-        script.write_bytes(source)
-        project_files = []
-        if core:
-            pkg = tmp / "core" / "controller"
-            for arc, data in core:
-                dst = tmp / "core" / arc
-                dst.parent.mkdir(parents=True, exist_ok=True)
-                dst.write_bytes(data)
-            project_files.append(pkg)
+        script.write_bytes(_privatise(source, private, _HERE / f"{slave_module}.py"))
+        for arc, data in bundle:
+            dst = tmp / "core" / private / arc
+            dst.parent.mkdir(parents=True, exist_ok=True)
+            dst.write_bytes(data)
+        project_files = [tmp / "core" / private]
         doc = tmp / "documentation"
         doc.mkdir()
-        summary = slave.__doc__ or ""
-        if bundle_core:  # the tracker: its semantics are documented in the engine
-            from . import engine
-            summary += "\n" + (engine.__doc__ or "")
         (doc / "index.html").write_text(
-            _documentation_html(doc_title, summary, slave.VARIABLES), encoding="utf-8")
+            _documentation_html(doc_title, summary, variables), encoding="utf-8")
+        # the builder imports the script: its private package must be importable meanwhile,
+        # with the private pythonfmu being the builder's own (it looks for subclasses of its
+        # Fmi2Slave / Fmi3Slave); inside the FMU the private copy is used
+        sys.path.insert(0, str(tmp / "core"))
+        fmi = "pythonfmu3" if fmi3 else "pythonfmu"
+        for name, mod in list(sys.modules.items()):
+            if name == fmi or name.startswith(f"{fmi}."):
+                sys.modules[f"{private}.{name}"] = mod
         try:
             if fmi3:  # pythonfmu3 names the file after the class, in the folder dest
                 built = FmuBuilder.build_FMU(
@@ -227,7 +287,7 @@ def _build(model: str, slave_module: str, prefix: str, dest_dir: str | Path,
         names = set(zf.namelist())
     expected = {"modelDescription.xml", f"resources/{module_name}.py",
                 f"binaries/{'x86_64-linux' if fmi3 else 'linux64'}/{model}.so"} | {
-        f"resources/{arc}" for arc, _ in core}
+        f"resources/{private}/{arc}" for arc, _ in bundle}
     missing = sorted(expected - names)
     if missing:
         raise FmuBuildError(f"{built}: incomplete FMU, missing {', '.join(missing)}")

@@ -22,14 +22,19 @@ import math
 from xml.etree.ElementTree import Element, SubElement
 
 from pythonfmu import Boolean, DefaultExperiment, Fmi2Causality, Fmi2Slave, Fmi2Variability, Real
+from pythonfmu.enums import Fmi2Status
 
 UNITS = {"s": ({"s": 1}, 1.0), "mm": ({"m": 1}, 1e-3), "mm/s": ({"m": 1, "s": -1}, 1e-3),
          "mm/s2": ({"m": 1, "s": -2}, 1e-3), "deg": ({"rad": 1}, math.pi / 180.0)}
 
+#: declared minimum of the parameters that must be > 0 (FMI bounds are inclusive: the FMU
+#: accepts exactly the declared range)
+POSITIVE_FLOOR = 1e-9
+
 #: (name, type, causality, variability, start, unit, description)
 VARIABLES: list[tuple] = [
     ("sample_time", "Real", "parameter", "fixed", 0.001, "s",
-     "Grid the output times are rounded to (the tracker's sample time)"),
+     "Grid the output times are rounded to (the tracker's sample time, > 0)"),
     ("speed", "Real", "parameter", "fixed", 300.0, "mm/s", "Conveyor speed (> 0)"),
     ("acc", "Real", "parameter", "fixed", 500.0, "mm/s2",
      "Acceleration of the speed ramps (> 0)"),
@@ -53,6 +58,22 @@ VARIABLES: list[tuple] = [
      "Item sensor: true for t_engage <= t < t_release (connect to CanTracker.engage)"),
 ]
 VR = {row[0]: i for i, row in enumerate(VARIABLES)}
+#: declared minimum (``min`` attribute) per parameter
+MINIMUM = {"sample_time": POSITIVE_FLOOR, "speed": POSITIVE_FLOOR, "acc": POSITIVE_FLOOR}
+
+
+def parameter_errors(p: dict) -> list[str]:
+    """What is wrong with the parameters ``p`` (by name), one phrase per problem."""
+    errors = [f"{name}={p[name]!r} must be finite" for name in p if not math.isfinite(p[name])]
+    if errors:
+        return errors
+    errors = [f"{name}={p[name]!r} {VARIABLES[VR[name]][5]} is outside its declared range "
+              f"[{lo!r}, inf]" for name, lo in MINIMUM.items() if p[name] < lo]
+    if not errors and p["t_stop"] < p["t_start"] + p["speed"] / p["acc"]:
+        errors.append(f"t_stop={p['t_stop']!r} s must be >= t_start + speed/acc "
+                      f"(={p['t_start'] + p['speed'] / p['acc']!r} s: the ramp-up must end "
+                      f"before the ramp-down starts)")
+    return errors
 
 
 def profile(t: float, speed: float, acc: float, t_start: float,
@@ -101,6 +122,8 @@ class CanConveyor(Fmi2Slave):
     def __init__(self, **kwargs) -> None:
         super().__init__(**kwargs)
         self._t0 = 0.0
+        #: why steps are refused (invalid parameters at initialisation, or terminated)
+        self._refusal: str | None = None
         for name, typ, causality, variability, start, _unit, desc in VARIABLES:
             setattr(self, name, start if start is not None else (False if typ == "Boolean"
                                                                  else 0.0))
@@ -136,6 +159,8 @@ class CanConveyor(Fmi2Slave):
             unit = VARIABLES[VR[sv.get("name")]][5]
             if unit:
                 sv[0].set("unit", unit)
+            if sv.get("name") in MINIMUM:
+                sv[0].set("min", repr(MINIMUM[sv.get("name")]))
         structure = root.find("ModelStructure")
         initial = SubElement(structure, "InitialUnknowns")
         for unknown in structure.find("Outputs"):
@@ -146,18 +171,26 @@ class CanConveyor(Fmi2Slave):
         self._t0 = float(start_time)
 
     def exit_initialization_mode(self) -> None:
+        """Validate the parameters: invalid ones are one logged error line (status Error:
+        the FMU's front library returns it as the call's status) and every step is refused.
+        Not raised: pythonfmu turns an exception into Fatal ("unknown error") and then
+        crashes the host on fmi2FreeInstance."""
         p = self._params()
-        if not (p["speed"] > 0 and p["acc"] > 0 and p["sample_time"] > 0):
-            msg = f"speed, acc and sample_time must be > 0 (got {p})"
-            self.log(msg)
-            raise ValueError(msg)
-        if p["t_stop"] < p["t_start"] + p["speed"] / p["acc"]:
-            msg = (f"t_stop (={p['t_stop']}) must be >= t_start + speed/acc "
-                   f"(={p['t_start'] + p['speed'] / p['acc']})")
-            self.log(msg)
-            raise ValueError(msg)
+        errors = parameter_errors(p)
+        if errors:
+            self._refusal = (f"{self.instance_name}: exitInitializationMode refused the "
+                             f"parameters: {'; '.join(errors)}")
+            self.log(self._refusal, Fmi2Status.error)
+            return
         self._update(self._t0)
 
+    def terminate(self) -> None:
+        self._refusal = f"{self.instance_name}: the instance is terminated (only reset or free it)"
+
     def do_step(self, current_time: float, step_size: float) -> bool:
+        if self._refusal is not None:
+            self.log(f"doStep at t={current_time!r} s refused: {self._refusal}",
+                     Fmi2Status.error)
+            return False
         self._update(current_time + step_size)
         return True

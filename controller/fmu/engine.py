@@ -71,8 +71,8 @@ import traceback
 from collections.abc import Callable
 from operator import itemgetter
 
-from controller.errors import ParameterError
-from controller.tracking import (
+from ..errors import ParameterError
+from ..tracking import (
     PLANNER_CODES,
     Imfs,
     Limits,
@@ -83,17 +83,21 @@ from controller.tracking import (
     TrackError,
     TrackState,
 )
-from controller.tracking import softmc as _softmc  # noqa: F401  (import eagerly, see below)
+from ..tracking import softmc as _softmc  # noqa: F401  (import eagerly, see below)
+from .runtime import EngineStateMixin
+
+__all__ = ["EngineStateMixin", "TrackerEngine", "VARIABLES", "VR", "tracker_params"]
 
 # The planners are imported lazily by the core (planner_factory).  Import them now, while the
 # FMU's resources folder is on sys.path, so a later instance never needs a folder that the
 # importer may have deleted meanwhile.  The optimal planner needs ruckig; if it cannot be
-# imported here the error is reported when an instance selects planner=1.
+# imported here, instantiation warns (``runtime.ruckig_warning``) and exitInitializationMode
+# refuses planner=1.
 try:
-    from controller.tracking import optimal as _optimal  # noqa: F401
+    from ..tracking import optimal as _optimal  # noqa: F401
     OPTIMAL_IMPORT_ERROR: str | None = None
-except Exception:
-    OPTIMAL_IMPORT_ERROR = traceback.format_exc()
+except Exception as _exc:
+    OPTIMAL_IMPORT_ERROR = f"{type(_exc).__name__}: {' '.join(str(_exc).split())}"
 
 #: Python-side logger: pythonfmu forwards FMI log messages only when the importer instantiated
 #: the FMU with loggingOn=true, so errors also go here (a Python host shows them on stderr).
@@ -127,9 +131,11 @@ UNITS: dict[str, tuple[dict[str, int], float]] = {
 
 _sync, _rot = _DEFAULTS.sync_trans, _DEFAULTS.sync_rot
 
-#: ``min`` of the parameters that must be > 0 (FMI bounds are inclusive: 0 itself is still
-#: refused at engage, with a logged error naming the value)
-_POSITIVE = {"min": "0"}
+#: ``min`` of the parameters that must be > 0.  FMI bounds are inclusive, so the declared
+#: minimum is a small positive floor, not 0: the FMU accepts exactly the declared range
+#: (``parameter_errors``), and the core accepts every value in it.
+POSITIVE_FLOOR = 1e-9
+_POSITIVE = {"min": repr(POSITIVE_FLOOR)}
 
 #: The FMU's variables, in value-reference order: (name, type, causality, variability, start,
 #: unit, description, extra XML attributes).  Outputs have no start (initial=calculated).
@@ -140,7 +146,8 @@ VARIABLES: list[tuple] = [
      {"min": "1e-05", "max": "0.1"}),
     ("mode", "Integer", "parameter", "fixed", int(Mode.ABSOLUTE), None,
      "Approach mode used at each engage (<robot>.slave): 3 absolute (onto the master), "
-     "5 relative (keep the offset to the master at engage)", {"min": "3", "max": "5"}),
+     "5 relative (keep the offset to the master at engage)",
+     {"min": "3", "max": "5", "enumeration": "Mode"}),
     ("planner", "Integer", "parameter", "fixed", 1, None,
      "Approach planner: " + ", ".join(f"{k} {v}" for k, v in sorted(PLANNER_CODES.items()))
      + " (1 = the default planner, needs ruckig)", {"min": "0", "max": "1"}),
@@ -246,6 +253,44 @@ _VR_ENGAGE = VR["engage"]
 INITIAL_DEPENDENCIES = {"x": "x0", "y": "y0", "z": "z0", "c": "c0"}
 
 
+#: Enumeration types of the model description: name -> ((item name, value), ...).  ``mode``
+#: is an Enumeration (FMI 2: accessed with fmi2Get/SetInteger; FMI 3: Int64): its declared
+#: values are exactly the accepted ones (an Integer 3..5 would declare 4 valid).
+ENUMERATIONS: dict[str, tuple[tuple[str, int], ...]] = {
+    "Mode": (("absolute", int(Mode.ABSOLUTE)), ("relative", int(Mode.RELATIVE))),
+}
+
+
+def parameter_errors(values: dict) -> list[str]:
+    """What is wrong with a set of parameter values (by FMU name), one phrase per value.
+
+    Checks each parameter against its declared range (``min``/``max`` of ``VARIABLES``,
+    inclusive, as FMI defines them) or enumeration and requires finite Reals, so that
+    declared and accepted ranges are the same.
+    """
+    errors = []
+    for name, typ, causality, _var, _start, unit, _desc, extra in VARIABLES:
+        if causality != "parameter" or name not in values:
+            continue
+        value = values[name]
+        u = f" {unit}" if unit and unit != "1" else ""
+        if typ == "Real" and not math.isfinite(value):
+            errors.append(f"{name}={value!r} must be finite")
+        elif "enumeration" in extra:
+            items = ENUMERATIONS[extra["enumeration"]]
+            if value not in {v for _, v in items}:
+                errors.append(f"{name}={value!r} must be one of "
+                              + ", ".join(f"{v} ({n})" for n, v in items))
+        elif "min" in extra or "max" in extra:
+            lo = float(extra.get("min", "-inf"))
+            hi = float(extra.get("max", "inf"))
+            if not lo <= value <= hi:
+                lo_s, hi_s = extra.get("min", "-inf"), extra.get("max", "inf")
+                errors.append(f"{name}={value!r}{u} is outside its declared range "
+                              f"[{lo_s}, {hi_s}]")
+    return errors
+
+
 def tracker_params(v: dict) -> TrackerParams:
     """The ``TrackerParams`` of a set of FMU parameter values (by FMU variable name).
 
@@ -276,8 +321,8 @@ def tracker_params(v: dict) -> TrackerParams:
     )
 
 
-#: step outcomes
-OK, DISCARD, ERROR = 0, 2, 3
+#: step outcomes and log levels (the FMI status values, the same in FMI 2 and FMI 3)
+OK, WARNING, DISCARD, ERROR = 0, 1, 2, 3
 
 
 class TrackerEngine:
@@ -292,7 +337,7 @@ class TrackerEngine:
     """
 
     def __init__(self, instance_name: str, build_id: str,
-                 report: Callable[[str, bool], None], importer_sees_errors: bool = False) -> None:
+                 report: Callable[[str, int], None], importer_sees_errors: bool = False) -> None:
         self.instance_name = instance_name
         self.build_id = build_id
         self._fmi_report = report
@@ -311,6 +356,12 @@ class TrackerEngine:
         self._update_settable()
         self.t0 = 0.0
         self.time = 0.0
+        #: False until the start time is known (FMI 2 setupExperiment; FMI 3: the front
+        #: library sets ``time`` before initialisation, else the first step's start)
+        self.t0_known = False
+        #: internal samples done since t0 (the communication grid is t0 + k*T)
+        self.k = 0
+        self.terminated = False
         self.failed: str | None = None
         self.engage_prev = False
         self.tracker: Tracker | None = None
@@ -319,10 +370,13 @@ class TrackerEngine:
         self._write_outputs(self._initial_setpoint(), 0, 0, 0)
 
     # -- logging ----------------------------------------------------------------------
-    def report(self, msg: str, warning: bool = False) -> None:
+    def report(self, msg: str, level: int = 3) -> None:
+        """Log ``msg`` with the FMI status ``level`` (``WARNING``, ``DISCARD``, ``ERROR``):
+        the status of the call that logs it (the FMU's front library returns the worst
+        status logged during a call, see ``build``)."""
         msg = msg.rstrip()  # one line break at the end is the importer's / handler's job
-        self._fmi_report(msg, warning)
-        LOG.log(self._log_levels[1 if warning else 0], msg)
+        self._fmi_report(msg, level)
+        LOG.log(self._log_levels[1 if level == WARNING else 0], msg)
 
     def _log_error(self, what: str) -> str:
         msg = f"{self.instance_name}: {what}\n{traceback.format_exc()}"
@@ -346,6 +400,9 @@ class TrackerEngine:
         values = {n: v[VR[n]] for n in _TUNABLE_NAMES}
         values.update(self.fixed if self.fixed is not None
                       else {n: v[vr] for vr, n in _FIXED})
+        errors = parameter_errors(values)
+        if errors:  # named as the FMU names them (the core would name its own fields)
+            raise ParameterError("; ".join(errors))
         return tracker_params(values)
 
     def _update_settable(self) -> None:
@@ -398,25 +455,44 @@ class TrackerEngine:
 
     # -- life cycle -------------------------------------------------------------------
     def setup(self, start_time: float) -> None:
+        """The start time [s] (setupExperiment / enterInitializationMode)."""
+        if self.initialized:
+            return
         self.t0 = self.time = float(start_time)
+        self.t0_known = True
+
+    def terminate(self) -> None:
+        """fmiXTerminate: later steps are refused (FMI: only reset or free are allowed)."""
+        self.terminated = True
 
     def exit_initialization(self) -> None:
-        """Freeze the fixed parameters and create the tracker.  Errors are logged and fail
-        the instance (not raised)."""
+        """Freeze the fixed parameters, validate all parameters and create the tracker.
+
+        Invalid values fail the instance with one logged line naming each bad parameter, its
+        value and the declared range (no traceback); ``planner=1`` without ruckig likewise.
+        Not raised: pythonfmu turns an exception into Fatal and then crashes the host on
+        Terminate/FreeInstance; the FMU's front library returns the logged error as the
+        call's status (see ``build``).
+        """
         self._freeze(True)
+        values = {n: self.v[VR[n]] for n in _PARAMETER_NAMES}
+        values.update(self.fixed)
+        errors = parameter_errors(values)
+        if not errors and int(values["planner"]) == 1 and OPTIMAL_IMPORT_ERROR is not None:
+            errors.append(f"planner=1 (optimal) needs ruckig, which cannot be imported "
+                          f"({OPTIMAL_IMPORT_ERROR}): install ruckig for the Python running "
+                          f"this FMU or set planner=0 (softmc)")
         try:
-            bad = [f"{n}={self.fixed[n]!r}" for n in ("x0", "y0", "z0", "c0")
-                   if not math.isfinite(self.fixed[n])]
-            if bad:
-                raise ParameterError(f"non-finite initial position {', '.join(bad)}")
+            if errors:
+                raise ParameterError("; ".join(errors))
             params = self.current_params()
-            if params.planner == "optimal" and OPTIMAL_IMPORT_ERROR is not None:
-                raise ImportError("planner=1 (optimal) cannot be loaded (is ruckig installed "
-                                  "in the importing Python?):\n" + OPTIMAL_IMPORT_ERROR)
             tracker = Tracker(params, self._initial_setpoint())
+        except ParameterError as exc:
+            self.failed = (f"{self.instance_name}: exitInitializationMode refused the "
+                           f"parameters: {exc}")
+            self.report(self.failed)
+            return
         except Exception as exc:
-            # Not raised: pythonfmu turns an exception into Fatal and then crashes the
-            # host on Terminate/FreeInstance.  Every step reports it instead.
             self.failed = self._log_error(f"initialisation failed: {exc}")
             return
         self.tracker, self.params, self.T = tracker, params, params.sample_time_s
@@ -425,20 +501,47 @@ class TrackerEngine:
         self._write_outputs(tracker.setpoint, tracker.imfs, tracker.state, tracker.error)
 
     def do_step(self, current_time: float, step_size: float) -> int:
+        """One communication step [current_time, current_time + step_size] [s].
+
+        Time grid: the step must start where the previous one ended and end on the grid
+        t0 + k*T, both within ``STEP_TOLERANCE`` * T (importers accumulate times with
+        rounding noise: libcosim counts ns, OMSimulator adds step sizes); it runs the samples
+        up to that grid point.  A step that reaches no new grid point within the tolerance
+        (the ~5e-14 s remainder an accumulating importer sends at the stop time) is a no-op.
+        """
+        if self.terminated:
+            self.report(f"{self.instance_name}: doStep at t={current_time!r} s refused: the "
+                        f"instance is terminated (only reset or free it)")
+            return ERROR
         if self.failed is not None:
             self.report(f"{self.instance_name}: step at t={current_time!r} s refused: the "
                         f"instance failed earlier (set a saved FMU state or reset it). First "
-                        f"error:\n{self.failed}")
-            return DISCARD
+                        f"error: {self.failed}")
+            return ERROR
         T = self.T
-        n = round(step_size / T)
-        if n < 1 or abs(step_size - n * T) > STEP_TOLERANCE * T:
-            self.report(f"{self.instance_name}: communication step size {step_size!r} s at "
-                        f"t={current_time!r} s refused: it must be a whole multiple (>= 1) of "
-                        f"sample_time={T!r} s (ratio {step_size / T:.9g}, relative tolerance "
-                        f"{STEP_TOLERANCE:g}); use stepSize {T!r} s (DefaultExperiment) or "
-                        f"a multiple")
+        tol = STEP_TOLERANCE * T
+        if not self.t0_known:  # FMI 3 without the front library: the first step's start
+            self.t0 = self.time = float(current_time)
+            self.t0_known = True
+        if abs(current_time - self.time) > tol:
+            self.report(f"{self.instance_name}: step at t={current_time!r} s refused: the "
+                        f"previous step ended at t={self.time!r} s (a communication step "
+                        f"starts where the last one ended; restore a saved FMU state to go "
+                        f"back); nothing changed", DISCARD)
             return DISCARD
+        end = current_time + step_size
+        k_end = round((end - self.t0) / T)
+        n = k_end - self.k
+        if n < 0 or abs(end - (self.t0 + k_end * T)) > tol:
+            self.report(f"{self.instance_name}: communication step size {step_size!r} s at "
+                        f"t={current_time!r} s refused: steps must end on the sample grid "
+                        f"t0 + k*sample_time (t0={self.t0!r} s, sample_time={T!r} s, "
+                        f"tolerance {tol:.3g} s), i.e. be whole multiples of sample_time; "
+                        f"use stepSize {T!r} s (DefaultExperiment) or a multiple", DISCARD)
+            return DISCARD
+        if n == 0:  # covers no sample: a no-op (outputs as they are)
+            self.time = end
+            return OK
         master = _get_master(self.v)
         if not math.isfinite(sum(master)):  # one test for all; the sum overflows rarely
             bad = [f"{VARIABLES[vr][0]}={x!r}" for vr, x in zip(_MASTER, master)
@@ -447,21 +550,22 @@ class TrackerEngine:
                 self.report(f"{self.instance_name}: step at t={current_time!r} s refused: "
                             f"non-finite master input {', '.join(bad)}; nothing changed "
                             f"(outputs and tracker state as at t={self.time!r} s): set finite "
-                            f"values and repeat the step, or restore a saved FMU state")
+                            f"values and repeat the step, or restore a saved FMU state", DISCARD)
                 return DISCARD
         try:
             self._step(n, T, master)
         except ParameterError as exc:
             # raised before any state changed: the step can be repeated with a valid value
-            self._log_error(f"step at t={current_time!r} s refused, a tunable parameter is "
-                            f"invalid at engage: {exc}")
+            self.report(f"{self.instance_name}: step at t={current_time!r} s refused, a "
+                        f"tunable parameter is invalid at engage: {exc}", DISCARD)
             return DISCARD
         except Exception as exc:
             self.failed = self._log_error(
                 f"exception in the step at t={current_time!r} s, step size {step_size!r} s: "
                 f"{exc!r}")
             return ERROR
-        self.time = current_time + step_size
+        self.time = end
+        self.k = k_end
         return OK
 
     def _step(self, n: int, T: float, master_values: tuple) -> None:
@@ -497,7 +601,8 @@ class TrackerEngine:
         return {"format": STATE_FORMAT, "build": self.build_id, "values": list(self.v),
                 "tracker": None if self.tracker is None else self.tracker.snapshot(),
                 "params": self.params, "engage_prev": self.engage_prev, "t0": self.t0,
-                "time": self.time, "failed": self.failed, "initialized": self.initialized}
+                "time": self.time, "failed": self.failed, "initialized": self.initialized,
+                "k": self.k, "t0_known": self.t0_known, "terminated": self.terminated}
 
     def set_state(self, state: dict) -> None:
         """Restore a state of ``get_state`` (copied: it can be restored again).  An unusable
@@ -512,7 +617,7 @@ class TrackerEngine:
             return
         if state.get("build") != self.build_id:
             self.report(f"{self.instance_name}: FMU state saved by build "
-                        f"{state.get('build')!r}, restored into {self.build_id!r}", True)
+                        f"{state.get('build')!r}, restored into {self.build_id!r}", WARNING)
         self.v[:] = state["values"]
         tracker = state["tracker"]
         self.tracker = None if tracker is None else tracker.snapshot()
@@ -521,6 +626,9 @@ class TrackerEngine:
             self.v[VR["sample_time"]])
         self.engage_prev = state["engage_prev"]
         self.t0, self.time = state["t0"], state["time"]
+        self.k = state.get("k", round((self.time - self.t0) / self.T))
+        self.t0_known = state.get("t0_known", True)
+        self.terminated = state.get("terminated", False)
         self.failed = state["failed"]
         # states of builds without the flag were saved after initialisation (a tracker)
         self._freeze(bool(state.get("initialized", tracker is not None)))
@@ -535,60 +643,3 @@ class TrackerEngine:
             return pickle.loads(data)
         except Exception as exc:
             return {"format": None, "error": f"cannot deserialize: {exc!r}"}
-
-
-class EngineStateMixin:
-    """FMU state of a slave class whose ``self._engine`` is a :class:`TrackerEngine`: get/set
-    and (de)serialisation delegate to the engine (all internal state).  Shared by the FMI 2
-    and FMI 3 slaves; list it before the pythonfmu base class."""
-
-    def _get_fmu_state(self) -> dict:
-        return self._engine.get_state()
-
-    def _set_fmu_state(self, state: dict) -> None:
-        self._engine.set_state(state)
-
-    @staticmethod
-    def _fmu_state_to_bytes(state: dict) -> bytes:
-        return TrackerEngine.state_to_bytes(state)
-
-    @staticmethod
-    def _fmu_state_from_bytes(state: bytes) -> dict:
-        return TrackerEngine.state_from_bytes(state)
-
-    # -- variable access shared by both FMI versions (the slaves bind them to their API's
-    #    names: get_integer / get_int32, set_real / set_float64, ...).  The fast path reads
-    #    and writes ``self._v`` directly (these run several times per step); anything else
-    #    (unknown, read-only or frozen variables) goes through the engine's checks.
-    def _get_integers(self, vrs):
-        if not self._int.issuperset(vrs):
-            self._engine.check("Integer", vrs)
-        v = self._v
-        return [v[vr] for vr in vrs]
-
-    def _get_booleans(self, vrs):
-        if not self._bool.issuperset(vrs):
-            self._engine.check("Boolean", vrs)
-        v = self._v
-        return [v[vr] for vr in vrs]
-
-    def _set_reals(self, vrs, values):
-        if not self._settable["Real"].issuperset(vrs):
-            return self._engine.set_values("Real", vrs, values, float)
-        v = self._v
-        for vr, value in zip(vrs, values):
-            v[vr] = value
-
-    def _set_integers(self, vrs, values):
-        if not self._settable["Integer"].issuperset(vrs):
-            return self._engine.set_values("Integer", vrs, values, int)
-        v = self._v
-        for vr, value in zip(vrs, values):
-            v[vr] = int(value)
-
-    def _set_booleans(self, vrs, values):
-        if not self._settable["Boolean"].issuperset(vrs):
-            return self._engine.set_values("Boolean", vrs, values, bool)
-        v = self._v
-        for vr, value in zip(vrs, values):
-            v[vr] = bool(value)

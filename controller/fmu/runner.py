@@ -214,6 +214,9 @@ class FmuTracker:
                 self._set_real([self.vr[name]], [float(value)])
             elif typ in ("Integer", "Int32"):
                 self._set_int([self.vr[name]], [int(value)])
+            elif typ == "Enumeration":  # FMI 2: an Integer; FMI 3: Int64
+                (self.slave.setInt64 if self.fmi3 else self.slave.setInteger)(
+                    [self.vr[name]], [int(value)])
             elif typ == "Boolean":
                 self.slave.setBoolean([self.vr[name]], [bool(value)])
             else:
@@ -278,3 +281,15 @@ class FmuTracker:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+def bundled_module(fmu_path: str | Path, name: str):
+    """The FMU's private copy of ``controller.<name>`` as imported in this process (after an
+    instance of the FMU was created), e.g. ``bundled_module(fmu, "tracking.tracker")``:
+    each FMU runs its own copy of the core under a private package name (see ``build``)."""
+    import sys
+    import zipfile
+
+    with zipfile.ZipFile(fmu_path) as zf:
+        module = zf.read("resources/slavemodule.txt").decode().strip()
+    return sys.modules[f"_{module}.{name}"]

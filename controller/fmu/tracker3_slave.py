@@ -16,16 +16,17 @@ logger ``cantrack.fmu`` records them at DEBUG only.
 
 from __future__ import annotations
 
+from xml.etree.ElementTree import Element, SubElement
+
+# Only the standard library, pythonfmu3 and ``runtime`` at the top (see tracker_slave.py);
+# ``cantrack fmu build`` rewrites these imports to the FMU's private package.
 from pythonfmu3 import (Boolean, DefaultExperiment, Float64, Fmi3Causality, Fmi3Slave,
                         Fmi3Status, Fmi3StepResult, Fmi3Variability, Int32, Unit)
 
-import controller
-from controller.fmu.engine import (DISCARD, OK, UNITS, VARIABLES, EngineStateMixin,
-                                   TrackerEngine)
+from controller import __version__
+from controller.fmu.runtime import EngineStateMixin, load_engine, ruckig_warning
 
 _TYPES = {"Real": Float64, "Integer": Int32, "Boolean": Boolean}
-VR_TIME = len(VARIABLES)
-_RESULTS = {OK: Fmi3StepResult(), DISCARD: Fmi3StepResult(status=Fmi3Status.discard)}
 _ERROR = Fmi3StepResult(status=Fmi3Status.error)
 
 
@@ -40,13 +41,18 @@ class CanTracker3(EngineStateMixin, Fmi3Slave):
         super().__init__(**kwargs)
         self.author = CanTracker3.author
         self.description = CanTracker3.description
-        self.version = controller.__version__
+        self.version = __version__
         self.license = "MIT"
-        self.default_experiment = DefaultExperiment(start_time=0.0, step_size=0.001)
+        self.default_experiment = DefaultExperiment(start_time=0.0, stop_time=1.0,
+                                                    step_size=0.001)
+        eng = self._eng = load_engine("CanTracker3")  # raises FmuDependencyError (one line)
+        VARIABLES, UNITS = eng.VARIABLES, eng.UNITS
+        self._results = {eng.OK: Fmi3StepResult(),
+                         eng.DISCARD: Fmi3StepResult(status=Fmi3Status.discard)}
         # pythonfmu3 forwards every non-debug message to the importer's logMessage, whatever
         # loggingOn: the engine's Python logger then stays quiet (DEBUG) -- no double print
-        engine = self._engine = TrackerEngine(self.instance_name, __name__, self._fmi_log,
-                                              importer_sees_errors=True)
+        engine = self._engine = eng.TrackerEngine(self.instance_name, __name__, self._fmi_log,
+                                                  importer_sees_errors=True)
         v = self._v = engine.v
         used = sorted({row[5] for row in VARIABLES if row[5]} | {"s"})
         self.register_units([Unit(name, factor=UNITS[name][1], **UNITS[name][0])
@@ -63,39 +69,75 @@ class CanTracker3(EngineStateMixin, Fmi3Slave):
             var = _TYPES[typ](name, **kw)
             self.register_variable(var)
             assert var.value_reference == vr
+        self._vr_time = len(VARIABLES)
         time = Float64("time", causality=Fmi3Causality.independent,
                        variability=Fmi3Variability.continuous, unit="s",
                        description="Simulation time", getter=lambda: engine.time)
         self.register_variable(time)
-        assert time.value_reference == VR_TIME
+        assert time.value_reference == self._vr_time
         self._real = engine.by_type["Real"]
         self._int = engine.by_type["Integer"]
         self._bool = engine.by_type["Boolean"]
         self._settable = engine.settable  # changes at exitInitializationMode (fixed ones)
+        warning = ruckig_warning("CanTracker3", eng.OPTIMAL_IMPORT_ERROR)
+        if warning:
+            engine.report(warning, eng.WARNING)
 
     def to_xml(self, model_options: dict | None = None):
-        """pythonfmu3's description plus the min/max attributes of the parameters."""
+        """pythonfmu3's description plus the min/max attributes of the parameters, ``mode``
+        as an Enumeration, the output dependencies (none: no direct feed-through) and the
+        internal step size."""
         root = super().to_xml(model_options or {})
-        extras = {row[0]: row[7] for row in VARIABLES}
+        eng = self._eng
+        rows = {row[0]: row for row in eng.VARIABLES}
+        root.find("CoSimulation").set("fixedInternalStepSize",
+                                      repr(rows["sample_time"][4]))
+        types = Element("TypeDefinitions")
+        for name, items in eng.ENUMERATIONS.items():
+            et = SubElement(types, "EnumerationType", {"name": name})
+            for item, value in items:
+                SubElement(et, "Item", {"name": item, "value": str(value)})
+        root.insert(list(root).index(root.find("UnitDefinitions")) + 1, types)
         for el in root.find("ModelVariables"):
-            for k, val in extras.get(el.get("name"), {}).items():
+            row = rows.get(el.get("name"))
+            extra = dict(row[7]) if row else {}
+            enum = extra.pop("enumeration", None)
+            if enum:  # accessed with fmi3Get/SetInt64; its items are the accepted values
+                el.tag = "Enumeration"
+                el.set("declaredType", enum)
+                extra.pop("min", None)
+                extra.pop("max", None)
+            for k, val in extra.items():
                 el.set(k, val)
+        for el in root.find("ModelStructure"):
+            if el.tag == "Output":
+                el.set("dependencies", "")  # outputs are states: no direct feed-through
+            elif el.tag == "InitialUnknown":
+                name = eng.VARIABLES[int(el.get("valueReference"))][0]
+                dep = eng.INITIAL_DEPENDENCIES.get(name)
+                el.set("dependencies", str(eng.VR[dep]) if dep else "")
         return root
 
-    def _fmi_log(self, msg: str, warning: bool) -> None:
-        self.log(msg, Fmi3Status.warning if warning else Fmi3Status.error)
+    def _fmi_log(self, msg: str, level: int) -> None:
+        self.log(msg, Fmi3Status(level))
 
-    # -- life cycle (pythonfmu3 passes no start time: ``time`` is 0 until the first step) ---
+    # -- life cycle.  pythonfmu3 passes no start time to Python: the FMU's front library
+    #    sets ``time`` (value reference 52) to fmi3EnterInitializationMode's startTime just
+    #    before it (independent variables are not settable by the importer; see build.py).
+    #    Without the front library ``time`` is the first step's start.
     def exit_initialization_mode(self) -> None:
         self._engine.exit_initialization()
 
+    def terminate(self) -> None:
+        self._engine.terminate()
+
     def do_step(self, current_time: float, step_size: float) -> Fmi3StepResult:
-        return _RESULTS.get(self._engine.do_step(current_time, step_size), _ERROR)
+        return self._results.get(self._engine.do_step(current_time, step_size), _ERROR)
 
     # -- variable access --------------------------------------------------------------
     def get_float64(self, vrs):
         if not self._real.issuperset(vrs):
-            return [self._engine.time if vr == VR_TIME else self._get_checked("Real", vr)
+            return [self._engine.time if vr == self._vr_time else self._get_checked("Real", vr)
                     for vr in vrs]
         if self._engine.tracker is None:
             self._engine.refresh_initial()
@@ -107,7 +149,15 @@ class CanTracker3(EngineStateMixin, Fmi3Slave):
         return self._v[vr]
 
     get_int32 = EngineStateMixin._get_integers
+    get_int64 = EngineStateMixin._get_integers  # Enumeration (mode)
+    set_int64 = EngineStateMixin._set_integers
     get_boolean = EngineStateMixin._get_booleans
-    set_float64 = EngineStateMixin._set_reals
+    def set_float64(self, vrs, values):
+        if self._vr_time in vrs:  # the start time from the front library (see above)
+            self._engine.setup(values[list(vrs).index(self._vr_time)])
+            pairs = [(vr, x) for vr, x in zip(vrs, values) if vr != self._vr_time]
+            vrs, values = [p[0] for p in pairs], [p[1] for p in pairs]
+        return self._set_reals(vrs, values)
+
     set_int32 = EngineStateMixin._set_integers
     set_boolean = EngineStateMixin._set_booleans

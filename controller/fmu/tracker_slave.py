@@ -17,6 +17,10 @@ from __future__ import annotations
 
 from xml.etree.ElementTree import Element, SubElement
 
+# Only the standard library, pythonfmu and ``runtime`` (standard library) at the top: the
+# engine needs numpy and is imported when an instance is created, so that a missing numpy is
+# a clear instantiation error (see ``runtime``).  ``cantrack fmu build`` rewrites these
+# absolute imports to the FMU's private package (``_cantrack_<hash>.pythonfmu``, ...).
 from pythonfmu import (
     Boolean,
     DefaultExperiment,
@@ -28,19 +32,10 @@ from pythonfmu import (
 )
 from pythonfmu.enums import Fmi2Status
 
-import controller
-from controller.fmu.engine import (
-    EngineStateMixin,
-    INITIAL_DEPENDENCIES,
-    OK,
-    UNITS,
-    VARIABLES,
-    VR,
-    TrackerEngine,
-    tracker_params,
-)
+from controller import __version__
+from controller.fmu.runtime import EngineStateMixin, load_engine, ruckig_warning
 
-__all__ = ["VARIABLES", "VR", "CanTracker", "tracker_params"]
+__all__ = ["CanTracker"]
 
 _TYPES = {"Real": Real, "Integer": Integer, "Boolean": Boolean}
 
@@ -51,16 +46,18 @@ class CanTracker(EngineStateMixin, Fmi2Slave):
     author = "cantrack"
     description = ("cantrack conveyor tracker (softMC moving-frame synchronisation): robot "
                    "setpoint from the master's state; units mm, deg, s")
-    version = controller.__version__
+    version = __version__
     license = "MIT"
-    default_experiment = DefaultExperiment(start_time=0.0, step_size=0.001)
+    # stop 1 s: fmpy keeps the 1 ms step for runs of at most 1000 steps
+    default_experiment = DefaultExperiment(start_time=0.0, stop_time=1.0, step_size=0.001)
 
     def __init__(self, **kwargs) -> None:
         super().__init__(**kwargs)
-        engine = self._engine = TrackerEngine(self.instance_name, __name__, self._fmi_log)
+        eng = self._eng = load_engine("CanTracker")  # raises FmuDependencyError (one line)
+        engine = self._engine = eng.TrackerEngine(self.instance_name, __name__, self._fmi_log)
         v = self._v = engine.v
         for vr, (name, typ, causality, variability, _start, _unit, desc, _x) in enumerate(
-                VARIABLES):
+                eng.VARIABLES):
             var = _TYPES[typ](name, causality=getattr(Fmi2Causality, causality),
                               variability=getattr(Fmi2Variability, variability),
                               description=desc, getter=(lambda vr=vr: v[vr]),
@@ -72,15 +69,20 @@ class CanTracker(EngineStateMixin, Fmi2Slave):
         self._int = engine.by_type["Integer"]
         self._bool = engine.by_type["Boolean"]
         self._settable = engine.settable  # changes at exitInitializationMode (fixed ones)
+        warning = ruckig_warning("CanTracker", eng.OPTIMAL_IMPORT_ERROR)
+        if warning:
+            engine.report(warning, eng.WARNING)
 
-    def _fmi_log(self, msg: str, warning: bool) -> None:
-        self.log(msg, Fmi2Status.warning if warning else Fmi2Status.error)
+    def _fmi_log(self, msg: str, level: int) -> None:
+        self.log(msg, Fmi2Status(level))
 
     # -- model description ------------------------------------------------------------
     def to_xml(self, model_options: dict | None = None) -> Element:
         """pythonfmu's description plus units, min/max, output dependencies and the
         ``InitialUnknowns`` (pythonfmu issue #193)."""
         root = super().to_xml(model_options or {})
+        eng = self._eng
+        VARIABLES, VR, UNITS = eng.VARIABLES, eng.VR, eng.UNITS
         specs = {row[0]: (row[5], row[7]) for row in VARIABLES}
         units = Element("UnitDefinitions")
         for name in sorted({unit for unit, _ in specs.values() if unit}):
@@ -90,10 +92,23 @@ class CanTracker(EngineStateMixin, Fmi2Slave):
                 attrs["factor"] = repr(factor)
             SubElement(SubElement(units, "Unit", {"name": name}), "BaseUnit", attrs)
         root.insert(list(root).index(root.find("CoSimulation")) + 1, units)
+        types = Element("TypeDefinitions")
+        for name, items in eng.ENUMERATIONS.items():
+            enum = SubElement(SubElement(types, "SimpleType", {"name": name}), "Enumeration")
+            for item, value in items:
+                SubElement(enum, "Item", {"name": item, "value": str(value)})
+        root.insert(list(root).index(units) + 1, types)
         for sv in root.find("ModelVariables"):
             unit, extra = specs[sv.get("name")]
+            extra = dict(extra)
             if unit:
                 sv[0].set("unit", unit)
+            enum = extra.pop("enumeration", None)
+            if enum:  # accessed with fmi2Get/SetInteger; its items are the accepted values
+                sv[0].tag = "Enumeration"
+                sv[0].set("declaredType", enum)
+                extra.pop("min", None)
+                extra.pop("max", None)
             for k, val in extra.items():
                 sv[0].set(k, val)
         structure = root.find("ModelStructure")
@@ -102,7 +117,7 @@ class CanTracker(EngineStateMixin, Fmi2Slave):
         initial = SubElement(structure, "InitialUnknowns")
         for row in VARIABLES:
             if row[2] == "output":
-                dep = INITIAL_DEPENDENCIES.get(row[0])
+                dep = eng.INITIAL_DEPENDENCIES.get(row[0])
                 SubElement(initial, "Unknown", {
                     "index": str(VR[row[0]] + 1),
                     "dependencies": str(VR[dep] + 1) if dep else ""})
@@ -115,8 +130,11 @@ class CanTracker(EngineStateMixin, Fmi2Slave):
     def exit_initialization_mode(self) -> None:
         self._engine.exit_initialization()
 
+    def terminate(self) -> None:
+        self._engine.terminate()
+
     def do_step(self, current_time: float, step_size: float) -> bool:
-        return self._engine.do_step(current_time, step_size) == OK
+        return self._engine.do_step(current_time, step_size) == self._eng.OK
 
     # -- variable access --------------------------------------------------------------
     def get_real(self, vrs):

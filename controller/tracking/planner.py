@@ -26,10 +26,12 @@ class ChannelPlanner(Protocol):
     def step(self, mp: Vec, mv: Vec, ma: Vec) -> tuple[Vec, Vec, Vec, bool]: ...
 
 
-#: planner name -> "module:factory"; factory(limits, params) -> ChannelPlanner
+#: planner name -> "module:factory"; factory(limits, params) -> ChannelPlanner.  The modules
+#: are named relative to this package (not "controller.tracking..."), so the core also works
+#: as a copy under another package name (the FMUs bundle it under a private name).
 PLANNERS: dict[str, str] = {
-    "softmc": "controller.tracking.softmc:create",
-    "optimal": "controller.tracking.optimal:create",
+    "softmc": f"{__package__}.softmc:create",
+    "optimal": f"{__package__}.optimal:create",
 }
 
 #: FMU / CLI integer codes of the planners
