@@ -18,7 +18,8 @@ from fmpy import read_model_description
 from fmpy.fmi1 import FMICallException
 
 from controller.fmu.engine import ENUMERATIONS, VARIABLES, tracker_params
-from controller.fmu.runner import FmuTracker, conveyor_scenario, core_run, master_values
+from controller.fmu.runner import (FmuRunError, FmuTracker, conveyor_scenario, core_run,
+                                   master_values)
 
 T = 0.001
 DEFAULTS = {row[0]: row[4] for row in VARIABLES if row[2] == "parameter"}
@@ -100,7 +101,7 @@ def test_do_step_after_terminate_is_refused(fmu_path):
         with pytest.raises(FMICallException) as exc:
             fmu.slave.doStep(fmu.time, T)
         assert "refused: the instance is terminated" in fmu.messages[-1][2]
-        assert fmu.messages[-1][0] == 3 and exc.value.status in (2, 3)
+        assert fmu.messages[-1][0] == 3 and exc.value.status == 3
 
 
 # -- declared ranges = accepted ranges ----------------------------------------------------
@@ -145,7 +146,9 @@ def test_declared_ranges_are_the_accepted_ranges(fmu2_path):
             with FmuTracker(fmu2_path, start_values={"planner": 0, name: value}) as fmu:
                 assert [m for m in fmu.messages if m[0] >= 2] == [], (name, value)
         for value in refused:
-            with FmuTracker(fmu2_path, start_values={"planner": 0, name: value}) as fmu:
+            with FmuTracker(fmu2_path, start_values={"planner": 0, name: value},
+                            init_errors=True) as fmu:
+                assert fmu.init_error is not None and fmu.init_error.status == 3
                 errors = [m for m in fmu.messages if m[0] >= 2]
                 assert len(errors) == 1 and "\n" not in errors[0][2], (name, value)
                 assert f"{name}={value!r}" in errors[0][2], (name, value, errors)
@@ -159,8 +162,9 @@ def test_mode_is_an_enumeration_of_the_accepted_values(fmu_path):
         ("absolute", 3), ("relative", 5)]
     with FmuTracker(fmu_path, start_values={"planner": 0, "mode": 5}) as fmu:
         assert [m for m in fmu.messages if m[0] >= 2] == []
-    with FmuTracker(fmu_path, start_values={"planner": 0, "mode": 4}) as fmu:
-        assert "mode=4 must be one of 3 (absolute), 5 (relative)" in fmu.messages[-1][2]
+    with pytest.raises(FmuRunError, match=r"mode=4 must be one of 3 \(absolute\), 5 "
+                                          r"\(relative\)"):
+        FmuTracker(fmu_path, start_values={"planner": 0, "mode": 4})
 
 
 def test_conveyor_parameters_validated_in_one_line(fmu2_path):
@@ -188,12 +192,14 @@ def test_conveyor_parameters_validated_in_one_line(fmu2_path):
     s.setupExperiment(startTime=0.0)
     s.enterInitializationMode()
     s.setReal([vr["speed"]], [0.0])
-    s.exitInitializationMode()
+    with pytest.raises(FMICallException) as exc:
+        s.exitInitializationMode()
+    assert exc.value.status == 3  # fmi2Error, not Fatal ("unknown error")
     assert messages[-1] == (3, "conv: exitInitializationMode refused the parameters: "
                                "speed=0.0 mm/s is outside its declared range [1e-09, inf]")
-    with pytest.raises(FMICallException):
+    with pytest.raises(FMICallException) as exc:
         s.doStep(0.0, T)
-    assert "refused" in messages[-1][1] and messages[-1][0] == 3
+    assert "refused" in messages[-1][1] and messages[-1][0] == 3 and exc.value.status == 3
     s.terminate()
     s.freeInstance()
 

@@ -18,11 +18,16 @@ What goes into ``CanTracker.fmu`` (FMI 2.0 Co-Simulation):
   (``pythonfmu/``).  The build rewrites the script's ``from controller...`` and
   ``from pythonfmu...`` imports to this package (``_privatise``); the bundled modules import
   each other relatively.  The name carries the hash, so no host package can shadow it.
-- ``binaries/{linux64,win64}/CanTracker.{so,dll}``: pythonfmu's FMI wrapper, which runs the
-  slave in the importing process's Python (it does not link libpython).
+- ``binaries/linux64/CanTracker.so``: the front library (``front.c``, compiled by the build:
+  it needs a C compiler): loads libpython in hosts without Python, returns the status the
+  FMU logged during a call (Error from exitInitializationMode / doStep, which pythonfmu cannot
+  return), refuses Model Exchange and FMI 3 event mode, passes the FMI 3 start time, and
+  forwards every other call to ``binaries/linux64/CanTracker_pythonfmu.so``: pythonfmu's FMI
+  wrapper, which runs the slave in the process's Python (it does not link libpython).
+  ``binaries/win64/CanTracker.dll``: pythonfmu's wrapper alone.
 - ``documentation/index.html``: variables, semantics and what the importing tool needs.
 
-Nothing binary of ours is bundled.
+The only binary of ours is the front library, compiled from source at build time.
 """
 
 from __future__ import annotations
@@ -31,8 +36,12 @@ import contextlib
 import hashlib
 import html
 import importlib
+import os
 import re
+import shutil
+import subprocess
 import sys
+import sysconfig
 import tempfile
 import zipfile
 from pathlib import Path
@@ -61,15 +70,16 @@ is (planner=1 is then refused at exitInitializationMode).  The tracker core and 
 Python part are bundled in resources/ under a private package name (_cantracker_<hash>):
 packages of the host, also one called `controller`, do not interfere.
 
-Non-Python hosts on Linux (a C/C++ master, OMSimulator, ...): the wrapper does not link
-libpython, so loading it fails with "undefined symbol: _Py_NoneStruct" (pythonfmu #202).
-Preload the shared Python library and point Python at its home and packages:
-    LD_PRELOAD=/path/to/libpython3.X.so      # e.g. <prefix>/lib/libpython3.11.so
-    PYTHONHOME=/path/to/prefix               # needed unless Python lives in /usr
-                                             # (else: No module named 'math')
-    PYTHONPATH=/path/to/site-packages        # the folder(s) holding numpy (and ruckig)
-fmu/c_host/fmi2_host.c is a complete example (tested).
-Windows (not tested): the folder of python3X.dll on PATH, PYTHONHOME/PYTHONPATH as above.
+Non-Python hosts on Linux (a C/C++ master, fmusim, OMSimulator, ...): nothing to set.  The
+FMU's front library (binaries/<platform>/<model>.so, controller/fmu/front.c) loads
+libpython itself when the host has none: $CANTRACK_LIBPYTHON if set, else the Python that
+built the FMU (its path is recorded), else libpython3.X.so.1.0 from the loader's search path
+(a distribution's Python).  That Python needs numpy (and ruckig for planner=1) in its own
+site-packages, or PYTHONPATH pointing at them (a virtual environment's).  When no Python can
+be loaded, instantiation fails naming what was tried.  `cantrack fmu doctor` prints what
+this machine provides.  fmu/c_host/fmi2_host.c is a complete C host (tested).
+Windows (not tested): pythonfmu's own wrapper (no front library): the folder of python3X.dll
+on PATH, PYTHONHOME/PYTHONPATH as needed.
 
 Logging: pythonfmu forwards the FMU's messages to the importer's logger only when the
 instance is created with loggingOn=true; errors also go to Python's `cantrack.fmu` logger.
@@ -150,6 +160,67 @@ def _privatise(source: bytes, private: str, path: Path) -> bytes:
     text = _ABSOLUTE_IMPORT.sub(
         lambda m: f"from {private}" if m[1] == "controller" else f"from {private}.{m[1]}", text)
     return text.encode()
+
+
+#: the C source of the FMUs' front library (see its header comment)
+FRONT_SOURCE = _HERE / "front.c"
+
+
+def _c_compiler() -> str:
+    cc = os.environ.get("CC") or shutil.which("cc") or shutil.which("gcc")
+    if not cc:
+        raise FmuBuildError("building the FMU's front library (controller/fmu/front.c) needs a "
+                            "C compiler: install gcc (apt-get install gcc) or set CC")
+    return cc
+
+
+def build_libpython() -> str:
+    """The shared library of the Python running the build ('' if it has none): the front
+    library loads it in hosts without Python unless CANTRACK_LIBPYTHON says otherwise."""
+    libdir = sysconfig.get_config_var("LIBDIR") or ""
+    for name in (sysconfig.get_config_var("INSTSONAME"), sysconfig.get_config_var("LDLIBRARY")):
+        if name and name.endswith((".so", ".so.1.0")) and (Path(libdir) / name).is_file():
+            return str(Path(libdir) / name)
+    return ""
+
+
+def _front_library(model: str, fmi3: bool, vr_time: int, out: Path) -> None:
+    """Compile the front library of ``model`` into ``out`` (Linux x86_64)."""
+    defines = {"FMI_VERSION": "3" if fmi3 else "2", "MODEL": f'"{model}"',
+               "REAL_LIBRARY": f'"{model}_pythonfmu.so"',
+               "LIBPYTHON_BUILD": f'"{build_libpython()}"',
+               "PY_MINOR": str(sys.version_info.minor), "VR_TIME": str(vr_time)}
+    cmd = [_c_compiler(), "-shared", "-fPIC", "-O2", "-fvisibility=hidden",
+           *[f"-D{k}={v}" for k, v in defines.items()], "-o", str(out), str(FRONT_SOURCE),
+           "-ldl", "-lpthread"]
+    try:
+        proc = subprocess.run(cmd, capture_output=True, text=True, timeout=120, check=False)
+    except OSError as exc:
+        raise FmuBuildError(f"{cmd[0]}: cannot run the C compiler: {exc}") from exc
+    if proc.returncode != 0:
+        raise FmuBuildError(f"{FRONT_SOURCE}: compiling the front library failed:\n"
+                            f"{proc.stderr[-2000:]}")
+
+
+def _install_front(fmu: Path, model: str, fmi3: bool, vr_time: int) -> None:
+    """Put the front library in as binaries/<platform>/<model>.so and pythonfmu's wrapper
+    beside it as <model>_pythonfmu.so (the front loads it).  Windows keeps pythonfmu's."""
+    platform = "x86_64-linux" if fmi3 else "linux64"
+    lib, wrapper = f"binaries/{platform}/{model}.so", f"binaries/{platform}/{model}_pythonfmu.so"
+    with tempfile.TemporaryDirectory(prefix="cantrack_front_") as tmp:
+        front = Path(tmp) / f"{model}.so"
+        _front_library(model, fmi3, vr_time, front)
+        rewritten = Path(tmp) / fmu.name
+        with zipfile.ZipFile(fmu) as src, zipfile.ZipFile(rewritten, "w",
+                                                          zipfile.ZIP_DEFLATED) as dst:
+            for info in src.infolist():
+                data = src.read(info)
+                if info.filename == lib:
+                    dst.writestr(wrapper, data)
+                    dst.writestr(lib, front.read_bytes())
+                else:
+                    dst.writestr(info, data)
+        shutil.move(rewritten, fmu)
 
 
 def _require_pythonfmu3():
@@ -283,10 +354,12 @@ def _build(model: str, slave_module: str, prefix: str, dest_dir: str | Path,
         except Exception as exc:
             raise FmuBuildError(f"building {target} from {script.name} failed: {exc}") from exc
     built = Path(built)
+    _install_front(built, model, fmi3, len(variables))
     with zipfile.ZipFile(built) as zf:
         names = set(zf.namelist())
+    platform = "x86_64-linux" if fmi3 else "linux64"
     expected = {"modelDescription.xml", f"resources/{module_name}.py",
-                f"binaries/{'x86_64-linux' if fmi3 else 'linux64'}/{model}.so"} | {
+                f"binaries/{platform}/{model}.so", f"binaries/{platform}/{model}_pythonfmu.so"} | {
         f"resources/{private}/{arc}" for arc, _ in bundle}
     missing = sorted(expected - names)
     if missing:

@@ -116,14 +116,17 @@ class FmuTracker:
     """One ``CanTracker.fmu`` (``FMU2Slave``) or ``CanTracker3.fmu`` (``FMU3Slave``) instance
     in fmpy, as a context manager.
 
-    ``start_values``: parameter values by name, set in initialisation mode.
+    ``start_values``: parameter values by name, set in initialisation mode.  An error of
+    exitInitializationMode raises ``FmuRunError`` unless ``init_errors`` (then it is kept in
+    ``init_error`` and the instance stays, to see what it does next).
     Log messages go to ``self.messages`` as (status, category, message).  ``self.slave`` is
     the fmpy object; :meth:`get_state` & co. hide the FMI 2 / FMI 3 name differences.
     """
 
     def __init__(self, fmu_path: str | Path, instance_name: str = "tracker",
                  start_values: dict | None = None, start_time: float = 0.0,
-                 logging_on: bool = True, unzip_dir: str | Path | None = None) -> None:
+                 logging_on: bool = True, unzip_dir: str | Path | None = None,
+                 init_errors: bool = False) -> None:
         from fmpy import extract, read_model_description
 
         self.path = Path(fmu_path)
@@ -147,7 +150,14 @@ class FmuTracker:
                 self._instantiate2(instance_name, logging_on, start_time)
             if start_values:
                 self.set(start_values)
-            self.slave.exitInitializationMode()
+            #: the FMICallException of exitInitializationMode (kept when ``init_errors``)
+            self.init_error = None
+            try:
+                self.slave.exitInitializationMode()
+            except Exception as exc:
+                if not init_errors:
+                    raise
+                self.init_error = exc
         except Exception as exc:
             log = "\n".join(f"[{c}] {m}" for _, c, m in self.messages[-3:])
             # after fmi2Fatal pythonfmu crashes on any further call: leave the instance

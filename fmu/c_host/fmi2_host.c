@@ -1,16 +1,15 @@
 /* A minimal non-Python FMI 2.0 Co-Simulation host for CanTracker.fmu (Linux).
  *
- * Shows what a C/C++ importer needs to run the pythonfmu-based FMU: the FMU's library does
- * not link libpython, so the host must preload it and tell Python where its packages are:
+ * Nothing about Python is set: the FMU's front library (binaries/linux64/CanTracker.so)
+ * loads libpython itself (see controller/fmu/front.c):
  *
  *   gcc -O1 -o fmi2_host fmi2_host.c -ldl
  *   unzip CanTracker.fmu -d CanTracker
- *   LD_PRELOAD=/path/to/libpython3.X.so PYTHONHOME=/path/to/prefix \
- *   PYTHONPATH=/path/to/site-packages \
- *     ./fmi2_host CanTracker/binaries/linux64/CanTracker.so GUID \
- *                 file:///abs/path/CanTracker/resources inputs.txt PLANNER
+ *   ./fmi2_host CanTracker/binaries/linux64/CanTracker.so GUID \
+ *               file:///abs/path/CanTracker/resources inputs.txt PLANNER
  *
- * Without LD_PRELOAD, dlopen fails with "undefined symbol: _Py_NoneStruct" (pythonfmu #202).
+ * pythonfmu's wrapper alone (CanTracker_pythonfmu.so) fails to load here with
+ * "undefined symbol: _Py_NoneStruct" (pythonfmu #202).
  *
  * inputs.txt: first line "VR_MASTER_X VR_ENGAGE VR_X" (value references: the 12 master
  * inputs are contiguous from master_x in the order x y z c vx vy vz vc ax ay az ac, the 12
