@@ -95,8 +95,8 @@ def test_build_layout(tracker_fmu):
     # the front library (controller/fmu/front.c) in front of pythonfmu's wrapper on Linux;
     # pythonfmu's wrapper alone on Windows
     binaries = {n for n in names if n.endswith((".so", ".dll", ".dylib", ".pyd"))}
-    assert binaries == {"binaries/linux64/CanTracker.so", "binaries/linux64/CanTracker_pythonfmu.so",
-                        "binaries/win64/CanTracker.dll"}
+    assert binaries == {"binaries/linux64/CanTracker.so",
+                        "binaries/linux64/CanTracker_pythonfmu.so", "binaries/win64/CanTracker.dll"}
     # the FMU does not carry the rest of the package (CLI, simulator, FMU build/check code)
     assert {n for n in names if n.startswith(private + "fmu/")} == {
         private + "fmu/__init__.py", private + "fmu/engine.py", private + "fmu/runtime.py"}

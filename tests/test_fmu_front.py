@@ -95,3 +95,25 @@ def test_errors_reach_the_importer_with_logging_off(fmu_path):
             fmu.slave.doStep(fmu.time, 1.5 * T)
         assert [m[0] for m in fmu.messages] == [2]
         assert "must end on the sample grid" in fmu.messages[0][2]
+
+
+def test_doctor(tmp_path):
+    """`cantrack fmu doctor`: this Python as the FMUs' Python; exit 1 naming what is missing."""
+    import os
+
+    from controller.fmu.build import build_libpython
+
+    cmd = [sys.executable, "-m", "controller.fmu", "doctor"]
+    res = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
+    assert res.returncode == 0, res.stdout + res.stderr
+    assert f"ok   shared libpython: {build_libpython()}" in res.stdout
+    assert "ok   numpy: " in res.stdout
+    fake = tmp_path / "no-ruckig" / "ruckig"
+    fake.mkdir(parents=True)
+    (fake / "__init__.py").write_text("raise ImportError('ruckig is not installed here')\n")
+    env = {**os.environ,
+           "PYTHONPATH": os.pathsep.join([str(fake.parent), os.environ.get("PYTHONPATH", "")])}
+    res = subprocess.run(cmd, capture_output=True, text=True, timeout=120, env=env)
+    assert res.returncode == 1
+    assert "FAIL ruckig (planner 1): ImportError: ruckig is not installed here; install: " \
+           in res.stdout and "pip install 'ruckig>=0.12'" in res.stdout

@@ -32,7 +32,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 
 
 def _add_subcommands(fmu: argparse.ArgumentParser) -> None:
-    sub = fmu.add_subparsers(dest="fmu_command", metavar="{build,check,crosscheck,cosim}")
+    sub = fmu.add_subparsers(dest="fmu_command",
+                             metavar="{build,check,crosscheck,cosim,doctor}")
     sub.required = True
     b = sub.add_parser("build", help="write DIR/CanTracker.fmu",
                        description="Write DIR/CanTracker.fmu (and with --system the conveyor "
@@ -64,6 +65,10 @@ def _add_subcommands(fmu: argparse.ArgumentParser) -> None:
                        description="Run OspSystemStructure.xml with libcosimpy and compare the "
                                    "tracker's outputs with the core run offline.")
     s.add_argument("system", metavar="OspSystemStructure.xml")
+    sub.add_parser("doctor", help="what this machine gives a host of the FMUs",
+                   description="Check this Python as the FMUs' Python (numpy, ruckig, shared "
+                               "libpython for hosts without Python) and print what a host "
+                               "must set.  Exit 1 if something needed is missing.")
 
 
 def main_fmu(args: argparse.Namespace) -> int:
@@ -124,7 +129,16 @@ def _cosim(args) -> int:
     return 1 if problems else 0
 
 
-_COMMANDS = {"build": _build, "check": _check, "crosscheck": _crosscheck, "cosim": _cosim}
+def _doctor(args) -> int:
+    from .doctor import diagnose
+
+    report = diagnose()
+    print(report.format())
+    return 0 if report.ok else 1
+
+
+_COMMANDS = {"build": _build, "check": _check, "crosscheck": _crosscheck, "cosim": _cosim,
+             "doctor": _doctor}
 
 
 def main(argv: list[str] | None = None, prog: str = "python -m controller.fmu") -> int:
