@@ -85,9 +85,10 @@ def tools_available(directory: Path | None = None) -> tuple[bool, str]:
     d = directory if directory is not None else vendor_dir()
     missing = [n for n, p in archives(d).items() if p is None]
     if missing:
-        return False, (f"independent FMI importers: no {', '.join(m + '-*.tar.gz' for m in missing)}"
-                       f" in {d} (set {VENDOR_ENV} to the directory with the Reference-FMUs, "
-                       "FMUComplianceChecker, fmi-library, zlib and sundials source archives)")
+        names = ", ".join(m + "-*.tar.gz" for m in missing)
+        return False, (f"independent FMI importers: no {names} in {d} (set {VENDOR_ENV} to "
+                       "the directory with the Reference-FMUs, FMUComplianceChecker, "
+                       "fmi-library, zlib and sundials source archives)")
     tools = [t for t in TOOLS if shutil.which(t) is None]
     if tools:
         return False, f"independent FMI importers: {', '.join(tools)} not installed"
