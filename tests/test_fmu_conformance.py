@@ -154,6 +154,22 @@ def test_declared_ranges_are_the_accepted_ranges(fmu2_path):
                 assert f"{name}={value!r}" in errors[0][2], (name, value, errors)
 
 
+def test_no_hidden_bounds():
+    """Parameters without a declared max accept any large finite value (1e300) in the core
+    as well; without a declared min, any negative one: nothing refuses what is declared."""
+    from controller.fmu.engine import parameter_errors
+    from controller.tracking import MotionState, Tracker
+
+    for name, typ, causality, _v, _start, _u, _d, extra in VARIABLES:
+        if causality != "parameter" or typ != "Real" or name == "sample_time":
+            continue
+        probes = ([] if "max" in extra else [1e300]) + ([] if "min" in extra else [-1e300])
+        for value in probes:
+            values = {**DEFAULTS, "planner": 0, name: value}
+            assert parameter_errors(values) == [], (name, value)
+            Tracker(tracker_params(values), MotionState.at())  # no ParameterError
+
+
 def test_mode_is_an_enumeration_of_the_accepted_values(fmu_path):
     md = read_model_description(str(fmu_path))
     (mode,) = [v for v in md.modelVariables if v.name == "mode"]

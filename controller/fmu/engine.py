@@ -84,6 +84,7 @@ from ..tracking import (
     TrackState,
 )
 from ..tracking import softmc as _softmc  # noqa: F401  (import eagerly, see below)
+from ..tracking.types import MAX_FACTOR
 from .runtime import EngineStateMixin
 
 __all__ = ["EngineStateMixin", "TrackerEngine", "VARIABLES", "VR", "tracker_params"]
@@ -177,9 +178,11 @@ VARIABLES: list[tuple] = [
     ("jerk_desync_rot", "Real", "parameter", "tunable", _rot.jerk, "deg/s3",
      "JerkDeSyncRot: rotation jerk of the de-sync", _POSITIVE),
     ("filter_factor", "Real", "parameter", "tunable", _DEFAULTS.filter_factor, "1",
-     "MF.FilterFactor g (> 0): synchronised when |dv| <= g*A*T and |dp| <= g*A*T^2", _POSITIVE),
+     f"MF.FilterFactor g (> 0, <= {MAX_FACTOR:g}): synchronised when |dv| <= g*A*T and "
+     "|dp| <= g*A*T^2", {**_POSITIVE, "max": repr(MAX_FACTOR)}),
     ("damping_factor", "Real", "parameter", "tunable", _DEFAULTS.damping_factor, "1",
-     "MF.DampingFactor (> 0): multiplies the softmc time-to-reach estimate", _POSITIVE),
+     f"MF.DampingFactor (> 0, <= {MAX_FACTOR:g}): multiplies the softmc time-to-reach "
+     "estimate", {**_POSITIVE, "max": repr(MAX_FACTOR)}),
     ("max_flops", "Integer", "parameter", "tunable", _DEFAULTS.max_flops, None,
      "MF.MaxFlops (>= 1): more large velocity-error sign flips than this within "
      f"{_DEFAULTS.max_flops_time_s:g} s during the approach is an over-oscillation (error 3)",
