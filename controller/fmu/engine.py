@@ -585,11 +585,17 @@ class TrackerEngine:
                 tracker.disengage()
             self.engage_prev = engage
         mx, my, mz, mvx, mvy, mvz, max_, may, maz, mc, mvc, mac = master_values
-        master = MotionState((mx, my, mz), (mvx, mvy, mvz), (max_, may, maz), mc, mvc, mac)
         update = tracker.update
         if n == 1:
-            out = update(master.extrapolated(T))
+            # MotionState(...).extrapolated(T) written out (the same operations in the same
+            # order: bit-identical), one MotionState per sample instead of two
+            h = 0.5 * T * T
+            out = update(MotionState(
+                (mx + mvx * T + max_ * h, my + mvy * T + may * h, mz + mvz * T + maz * h),
+                (mvx + max_ * T, mvy + may * T, mvz + maz * T), (max_, may, maz),
+                mc + mvc * T + mac * h, mvc + mac * T, mac))
         else:
+            master = MotionState((mx, my, mz), (mvx, mvy, mvz), (max_, may, maz), mc, mvc, mac)
             for i in range(1, n + 1):
                 out = update(master.extrapolated(i * T))
         sp = out.setpoint
