@@ -480,7 +480,9 @@ def test_invalid_fixed_parameter_is_logged_and_every_step_refused(tracker_fmu, c
 def test_unusable_serialized_state_is_refused_without_crash(tracker_fmu):
     with FmuTracker(tracker_fmu, start_values={"planner": 0}) as fmu:
         state = fmu.slave.deSerializeFMUstate(b"not a pickled state")
-        fmu.slave.setFMUstate(state)
+        with pytest.raises(FMICallException) as exc:
+            fmu.slave.setFMUstate(state)
+        assert exc.value.status == 3  # fmi2Error (the front library: the logged status)
         fmu.slave.freeFMUstate(state)
         assert "unusable state" in fmu.messages[-1][2]
         with pytest.raises(FMICallException):

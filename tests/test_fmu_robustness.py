@@ -111,7 +111,9 @@ def test_fixed_parameters_after_initialisation_are_refused(fmu_path, caplog):
         n_msgs = len(fmu.messages)
         changes = {"sample_time": 0.002, "mode": 4, "planner": 1, "x0": 7.0}
         for name, value in changes.items():
-            fmu.set({name: value})
+            with pytest.raises(FMICallException) as exc:
+                fmu.set({name: value})
+            assert exc.value.status == 3  # fmiXError (the front library: the logged status)
             status, category, text = fmu.messages[-1]
             assert status == 3 and category == "logStatusError"
             assert f"{name}={value!r} refused and ignored" in text and "fixed parameter" in text
@@ -126,7 +128,8 @@ def test_fixed_parameters_after_initialisation_are_refused(fmu_path, caplog):
         restored = fmu.deserialize_state(blob)
         fmu.set_state(restored)
         fmu.free_state(restored)
-        fmu.set({"mode": 5})  # still refused after restoring a state
+        with pytest.raises(FMICallException):
+            fmu.set({"mode": 5})  # still refused after restoring a state
         assert "mode=5 refused" in fmu.messages[-1][2]
     ref = core_run(tracker_params({**DEFAULTS, "planner": 0, "x0": 1.0}), scenario, 500,
                    initial=MotionState.at(1.0))

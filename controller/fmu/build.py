@@ -184,12 +184,22 @@ def build_libpython() -> str:
     return ""
 
 
-def _front_library(model: str, fmi3: bool, vr_time: int, out: Path) -> None:
-    """Compile the front library of ``model`` into ``out`` (Linux x86_64)."""
+def _front_library(model: str, fmi3: bool, vr_time: int, out: Path,
+                   cached: bool = False) -> None:
+    """Compile the front library of ``model`` into ``out`` (Linux x86_64); ``cached``: with
+    the variable cache of the tracker's inputs and outputs (``engine.CACHED_INPUTS``)."""
     defines = {"FMI_VERSION": "3" if fmi3 else "2", "MODEL": f'"{model}"',
                "REAL_LIBRARY": f'"{model}_pythonfmu.so"',
                "LIBPYTHON_BUILD": f'"{build_libpython()}"',
                "PY_MINOR": str(sys.version_info.minor), "VR_TIME": str(vr_time)}
+    if cached:
+        from .engine import BULK_BASE, CACHED_INPUTS, CACHED_OUTPUTS
+
+        for prefix, table in (("IN", CACHED_INPUTS), ("OUT", CACHED_OUTPUTS)):
+            defines[f"N_{prefix}"] = str(len(table))
+            defines[f"{prefix}_VRS"] = "{" + ",".join(str(vr) for vr, _ in table) + "}"
+            defines[f"{prefix}_TYPES"] = '"' + "".join(t for _, t in table) + '"'
+        defines["BULK_BASE"] = f"{BULK_BASE}u"
     cmd = [_c_compiler(), "-shared", "-fPIC", "-O2", "-fvisibility=hidden",
            *[f"-D{k}={v}" for k, v in defines.items()], "-o", str(out), str(FRONT_SOURCE),
            "-ldl", "-lpthread"]
@@ -202,14 +212,14 @@ def _front_library(model: str, fmi3: bool, vr_time: int, out: Path) -> None:
                             f"{proc.stderr[-2000:]}")
 
 
-def _install_front(fmu: Path, model: str, fmi3: bool, vr_time: int) -> None:
+def _install_front(fmu: Path, model: str, fmi3: bool, vr_time: int, cached: bool) -> None:
     """Put the front library in as binaries/<platform>/<model>.so and pythonfmu's wrapper
     beside it as <model>_pythonfmu.so (the front loads it).  Windows keeps pythonfmu's."""
     platform = "x86_64-linux" if fmi3 else "linux64"
     lib, wrapper = f"binaries/{platform}/{model}.so", f"binaries/{platform}/{model}_pythonfmu.so"
     with tempfile.TemporaryDirectory(prefix="cantrack_front_") as tmp:
         front = Path(tmp) / f"{model}.so"
-        _front_library(model, fmi3, vr_time, front)
+        _front_library(model, fmi3, vr_time, front, cached)
         rewritten = Path(tmp) / fmu.name
         with zipfile.ZipFile(fmu) as src, zipfile.ZipFile(rewritten, "w",
                                                           zipfile.ZIP_DEFLATED) as dst:
@@ -354,7 +364,7 @@ def _build(model: str, slave_module: str, prefix: str, dest_dir: str | Path,
         except Exception as exc:
             raise FmuBuildError(f"building {target} from {script.name} failed: {exc}") from exc
     built = Path(built)
-    _install_front(built, model, fmi3, len(variables))
+    _install_front(built, model, fmi3, len(variables), cached=bundle_core)
     with zipfile.ZipFile(built) as zf:
         names = set(zf.namelist())
     platform = "x86_64-linux" if fmi3 else "linux64"

@@ -252,6 +252,18 @@ _FIXED = [(i, row[0]) for i, row in enumerate(VARIABLES) if row[3] == "fixed"]
 _FIXED_VRS = frozenset(i for i, _ in _FIXED)
 _TUNABLE_NAMES = [row[0] for row in VARIABLES if row[2] == "parameter" and row[3] != "fixed"]
 _VR_ENGAGE = VR["engage"]
+#: Private value references of the front library's bulk transfers (front.c, "variable
+#: cache"): BULK_BASE + vr is variable vr as a float.  The front sets all pending inputs in
+#: one call and gets all outputs in one call; importers never see these references.
+BULK_BASE = 1 << 30
+_BULK_INPUT_SET = frozenset(BULK_BASE + i for i, row in enumerate(VARIABLES)
+                            if row[2] == "input")
+assert [row[1] for row in VARIABLES if row[2] == "input"].count("Boolean") == 1  # engage
+#: (value references, types r/i/b) of the inputs and outputs the front library caches
+CACHED_INPUTS = [(i, row[1][0].lower()) for i, row in enumerate(VARIABLES)
+                 if row[2] == "input"]
+CACHED_OUTPUTS = [(i, row[1][0].lower()) for i, row in enumerate(VARIABLES)
+                  if row[2] == "output"]
 #: outputs whose initial value depends on a parameter (InitialUnknowns dependencies)
 INITIAL_DEPENDENCIES = {"x": "x0", "y": "y0", "z": "z0", "c": "c0"}
 
@@ -426,6 +438,8 @@ class TrackerEngine:
         (pythonfmu/pythonfmu3 turn any exception in a setter into Fatal, so no error status
         can be returned); setting it to the value it has is accepted silently.  Any other
         reference that is not a settable ``kind`` raises TypeError (Fatal)."""
+        if vrs and vrs[0] >= BULK_BASE:
+            return self.set_bulk(vrs, values)
         v = self.v
         for vr, value in zip(vrs, values):
             if vr in self.settable[kind]:
@@ -441,6 +455,25 @@ class TrackerEngine:
                                 f"{v[vr]!r} (reset the instance to change it)")
                 continue
             self.check(kind, [vr], settable=True)
+
+    def set_bulk(self, vrs, values) -> None:
+        """The front library's bulk set of inputs (``BULK_BASE`` + vr, as floats)."""
+        if not _BULK_INPUT_SET.issuperset(vrs):
+            raise TypeError(f"valueReferences {list(vrs)} are not bulk input references")
+        v = self.v
+        for vr, value in zip(vrs, values):
+            v[vr - BULK_BASE] = value
+        v[_VR_ENGAGE] = bool(v[_VR_ENGAGE])  # the one Boolean input
+
+    def get_bulk(self, vrs) -> list:
+        """The front library's bulk get (``BULK_BASE`` + vr: any variable; the wrapper reads
+        each as a double)."""
+        if self.tracker is None:
+            self.refresh_initial()
+        v = self.v
+        if min(vrs) < BULK_BASE or max(vrs) >= BULK_BASE + len(v):
+            raise TypeError(f"valueReferences {list(vrs)} are not bulk references")
+        return [v[vr - BULK_BASE] for vr in vrs]
 
     def refresh_initial(self) -> None:
         """Before initialisation ends the outputs follow x0..c0 (InitialUnknowns)."""

@@ -22,11 +22,19 @@
  *    Fatal (pythonfmu frees the instance twice then);
  * 5. FMI 3: passes fmi3EnterInitializationMode's startTime to the Python part (pythonfmu3 does
  *    not) by setting the independent variable `time` (VR_TIME) just before it.
+ * 6. caches the inputs and outputs (the trackers: N_IN, N_OUT > 0): after initialisation,
+ *    setting inputs only stores them and getting outputs reads a copy, so a co-simulation
+ *    step costs three calls into Python instead of one per set/get call: before a step (or
+ *    any other call) the set inputs go to Python in one fmiXSetReal/SetFloat64 of the
+ *    private value references BULK_BASE + vr ("vr, as a float", see engine.BULK_BASE), the
+ *    first output read after a step fetches all outputs in one such get.  The values are
+ *    the same (doubles both ways; the integer outputs fit exactly).
  * Every other FMI function jumps straight into the wrapper (an x86_64 trampoline, no cost).
  *
  * Compile-time definitions (set by the build): FMI_VERSION (2 or 3), MODEL (model
  * identifier), REAL_LIBRARY (file name of the wrapper), LIBPYTHON_BUILD (path), PY_MINOR
- * (X of 3.X of the building Python), VR_TIME (FMI 3).
+ * (X of 3.X of the building Python), VR_TIME (FMI 3), BULK_BASE, N_IN, IN_VRS, IN_TYPES,
+ * N_OUT, OUT_VRS, OUT_TYPES (the cached variables: value references and types r/i/b).
  */
 #define _GNU_SOURCE
 #include <dlfcn.h>
@@ -38,6 +46,15 @@
 #include <string.h>
 #include <unistd.h>
 
+#ifndef N_IN /* no variable cache (CanConveyor) */
+#define N_IN 0
+#define IN_VRS {0}
+#define IN_TYPES ""
+#define N_OUT 0
+#define OUT_VRS {0}
+#define OUT_TYPES ""
+#define BULK_BASE 0
+#endif
 #define EXPORT __attribute__((visibility("default")))
 #define STATUS_WARNING 1
 #define STATUS_DISCARD 2
@@ -59,9 +76,8 @@ static int missing_function(void) { return STATUS_ERROR; }
 
 #if FMI_VERSION == 2
 #define FORWARDED(X)                                                                      \
-    X(fmi2SetupExperiment) X(fmi2EnterInitializationMode) X(fmi2GetReal) X(fmi2GetInteger) \
-    X(fmi2GetBoolean) X(fmi2GetString) X(fmi2SetReal) X(fmi2SetInteger) X(fmi2SetBoolean)  \
-    X(fmi2SetString) X(fmi2GetFMUstate) X(fmi2SetFMUstate) X(fmi2FreeFMUstate)            \
+    X(fmi2SetupExperiment) X(fmi2EnterInitializationMode) X(fmi2GetString)                \
+    X(fmi2SetString) X(fmi2FreeFMUstate)                                                  \
     X(fmi2SerializedFMUstateSize) X(fmi2SerializeFMUstate) X(fmi2DeSerializeFMUstate)      \
     X(fmi2GetDirectionalDerivative) X(fmi2SetRealInputDerivatives)                        \
     X(fmi2GetRealOutputDerivatives) X(fmi2CancelStep) X(fmi2GetStatus) X(fmi2GetRealStatus) \
@@ -69,13 +85,13 @@ static int missing_function(void) { return STATUS_ERROR; }
 #else
 #define FORWARDED(X)                                                                      \
     X(fmi3EnterConfigurationMode) X(fmi3ExitConfigurationMode) X(fmi3GetFloat32)           \
-    X(fmi3GetFloat64) X(fmi3GetInt8) X(fmi3GetUInt8) X(fmi3GetInt16) X(fmi3GetUInt16)      \
-    X(fmi3GetInt32) X(fmi3GetUInt32) X(fmi3GetInt64) X(fmi3GetUInt64) X(fmi3GetBoolean)    \
+    X(fmi3GetInt8) X(fmi3GetUInt8) X(fmi3GetInt16) X(fmi3GetUInt16)                        \
+    X(fmi3GetUInt32) X(fmi3GetInt64) X(fmi3GetUInt64)                                      \
     X(fmi3GetString) X(fmi3GetBinary) X(fmi3GetClock) X(fmi3SetFloat32) X(fmi3SetInt8)     \
-    X(fmi3SetUInt8) X(fmi3SetInt16) X(fmi3SetUInt16) X(fmi3SetInt32) X(fmi3SetUInt32)      \
-    X(fmi3SetInt64) X(fmi3SetUInt64) X(fmi3SetBoolean) X(fmi3SetString) X(fmi3SetBinary)   \
-    X(fmi3SetClock) X(fmi3SetFloat64) X(fmi3GetNumberOfVariableDependencies)               \
-    X(fmi3GetVariableDependencies) X(fmi3GetFMUState) X(fmi3SetFMUState)                 \
+    X(fmi3SetUInt8) X(fmi3SetInt16) X(fmi3SetUInt16) X(fmi3SetUInt32)                     \
+    X(fmi3SetUInt64) X(fmi3SetString) X(fmi3SetBinary)                                    \
+    X(fmi3SetClock) X(fmi3GetNumberOfVariableDependencies)                                 \
+    X(fmi3GetVariableDependencies)                                                         \
     X(fmi3FreeFMUState) X(fmi3SerializedFMUStateSize) X(fmi3SerializeFMUState)             \
     X(fmi3DeserializeFMUState) X(fmi3GetDirectionalDerivative)                            \
     X(fmi3GetAdjointDerivative) X(fmi3EvaluateDiscreteStates) X(fmi3UpdateDiscreteStates)  \
@@ -100,6 +116,13 @@ typedef struct Instance {
     char *name;
     void *env;           /* the importer's environment (FMI 2: componentEnvironment) */
     void *importer_logger;
+    /* the input/output cache (see "variable cache" below) */
+    int io_on;           /* after a successful exitInitializationMode */
+    int n_dirty;
+    int out_valid;
+    char in_dirty[N_IN + 1];
+    double in_value[N_IN + 1];
+    double out_value[N_OUT + 1];
 #if FMI_VERSION == 2
     void *callbacks[5];  /* fmi2CallbackFunctions handed to the wrapper (logger replaced) */
 #endif
@@ -212,6 +235,45 @@ static void load(void) {
 
 static void *real(const char *name) { return real_lib ? dlsym(real_lib, name) : NULL; }
 
+/* ---- variable cache (see 6. above) ---------------------------------------------------- */
+static const unsigned int in_vrs[N_IN + 1] = IN_VRS;
+static const char in_types[] = IN_TYPES;
+static const unsigned int out_vrs[N_OUT + 1] = OUT_VRS;
+static const char out_types[] = OUT_TYPES;
+
+static int position(const unsigned int *vrs, const char *types, int n, unsigned int vr,
+                    char type) {
+    for (int i = 0; i < n; i++)
+        if (vrs[i] == vr && types[i] == type) return i;
+    return -1;
+}
+
+/* all of vr[0..n) are cached inputs of ``type``: store the values (doubles), mark them */
+static int cache_inputs(Instance *inst, const unsigned int *vr, size_t n, char type,
+                        const double *reals, const int *ints, const unsigned char *bools) {
+    if (!inst->io_on || n > N_IN) return 0;
+    int pos[N_IN + 1];
+    for (size_t i = 0; i < n; i++)
+        if ((pos[i] = position(in_vrs, in_types, N_IN, vr[i], type)) < 0) return 0;
+    for (size_t i = 0; i < n; i++) {
+        inst->in_value[pos[i]] = reals ? reals[i] : ints ? (double)ints[i] : bools[i] ? 1.0 : 0.0;
+        if (!inst->in_dirty[pos[i]]) {
+            inst->in_dirty[pos[i]] = 1;
+            inst->n_dirty++;
+        }
+    }
+    return 1;
+}
+
+/* positions of vr[0..n) among the cached outputs of ``type``, or 0 if one is not */
+static int cached_outputs(Instance *inst, const unsigned int *vr, size_t n, char type,
+                          int *pos) {
+    if (!inst->io_on || n > N_OUT) return 0;
+    for (size_t i = 0; i < n; i++)
+        if ((pos[i] = position(out_vrs, out_types, N_OUT, vr[i], type)) < 0) return 0;
+    return 1;
+}
+
 #if FMI_VERSION == 2
 /* ======================================= FMI 2 ======================================= */
 typedef void (*Logger2)(void *, const char *, int, const char *, const char *, ...);
@@ -304,23 +366,170 @@ EXPORT void *fmi2Instantiate(const char *name, int type, const char *guid, const
     return inst->handle;
 }
 
-#define CALL2(fname, proto, args)                                                        \
-    EXPORT int fname proto {                                                              \
-        static void *cached;                                                              \
-        if (!cached) cached = real(#fname);                                               \
-        Instance *inst = find(c);                                                         \
-        int (*f) proto = (int(*) proto)cached;                                            \
-        if (!inst || !f) return STATUS_ERROR;                                             \
-        if (inst->fatal) return STATUS_ERROR;                                             \
-        inst->worst = 0;                                                                  \
-        return status_of(inst, f args);                                                   \
+
+/* the wrapper's functions the front calls (resolved on first use) */
+typedef int (*SetReal2)(void *, const unsigned int *, size_t, const double *);
+typedef int (*SetInt2)(void *, const unsigned int *, size_t, const int *);
+typedef int (*GetReal2)(void *, const unsigned int *, size_t, double *);
+typedef int (*GetInt2)(void *, const unsigned int *, size_t, int *);
+typedef int (*Call2)(void *);
+typedef int (*State2)(void *, void *);
+#define WRAPPED(type, name) ((type)wrapped(&w_##name, #name))
+static void *w_fmi2SetReal, *w_fmi2SetInteger, *w_fmi2SetBoolean, *w_fmi2GetReal,
+    *w_fmi2GetInteger, *w_fmi2GetBoolean, *w_fmi2GetFMUstate, *w_fmi2SetFMUstate,
+    *w_fmi2DoStep, *w_fmi2ExitInitializationMode, *w_fmi2Terminate, *w_fmi2Reset;
+static void *wrapped(void **slot, const char *name) {
+    if (!*slot) *slot = real(name);
+    return *slot;
+}
+
+static int flush(Instance *inst) {
+    if (!inst->n_dirty) return 0;
+    unsigned int vrs[N_IN + 1];
+    double values[N_IN + 1];
+    size_t n = 0;
+    for (int i = 0; i < N_IN; i++) {
+        if (!inst->in_dirty[i]) continue;
+        vrs[n] = BULK_BASE + in_vrs[i];
+        values[n++] = inst->in_value[i];
+        inst->in_dirty[i] = 0;
     }
+    inst->n_dirty = 0;
+    return WRAPPED(SetReal2, fmi2SetReal)(inst->handle, vrs, n, values);
+}
 
-CALL2(fmi2ExitInitializationMode, (void *c), (c))
-CALL2(fmi2Terminate, (void *c), (c))
-CALL2(fmi2Reset, (void *c), (c))
-CALL2(fmi2DoStep, (void *c, double t, double h, int noSetPrior), (c, t, h, noSetPrior))
+static int fetch(Instance *inst) {
+    unsigned int vrs[N_OUT + 1];
+    for (int i = 0; i < N_OUT; i++) vrs[i] = BULK_BASE + out_vrs[i];
+    int status = WRAPPED(GetReal2, fmi2GetReal)(inst->handle, vrs, N_OUT, inst->out_value);
+    inst->out_valid = status <= STATUS_WARNING;
+    return status;
+}
 
+/* the instance of c, or NULL (then the call returns Error) */
+static Instance *usable(void *c) {
+    Instance *inst = find(c);
+    return inst && !inst->fatal && real_lib ? inst : NULL;
+}
+
+/* before a call the cache cannot serve: the set inputs go to Python first */
+#define PASS_THROUGH(inst, call)                                                          \
+    do {                                                                                  \
+        int flushed = flush(inst);                                                        \
+        if (flushed > STATUS_WARNING) return flushed;                                     \
+        inst->worst = 0;                                                                  \
+        return status_of(inst, call);                                                     \
+    } while (0)
+
+EXPORT int fmi2SetReal(void *c, const unsigned int vr[], size_t n, const double value[]) {
+    Instance *inst = usable(c);
+    if (!inst) return STATUS_ERROR;
+    if (cache_inputs(inst, vr, n, 'r', value, NULL, NULL)) return 0;
+    inst->out_valid = 0;
+    PASS_THROUGH(inst, WRAPPED(SetReal2, fmi2SetReal)(c, vr, n, value));
+}
+
+EXPORT int fmi2SetInteger(void *c, const unsigned int vr[], size_t n, const int value[]) {
+    Instance *inst = usable(c);
+    if (!inst) return STATUS_ERROR;
+    if (cache_inputs(inst, vr, n, 'i', NULL, value, NULL)) return 0;
+    inst->out_valid = 0;
+    PASS_THROUGH(inst, WRAPPED(SetInt2, fmi2SetInteger)(c, vr, n, value));
+}
+
+EXPORT int fmi2SetBoolean(void *c, const unsigned int vr[], size_t n, const int value[]) {
+    Instance *inst = usable(c);
+    if (!inst) return STATUS_ERROR;
+    if (inst->io_on && n <= N_IN) {
+        unsigned char b[N_IN + 1];
+        for (size_t i = 0; i < n; i++) b[i] = value[i] != 0;
+        if (cache_inputs(inst, vr, n, 'b', NULL, NULL, b)) return 0;
+    }
+    inst->out_valid = 0;
+    PASS_THROUGH(inst, WRAPPED(SetInt2, fmi2SetBoolean)(c, vr, n, value));
+}
+
+EXPORT int fmi2GetReal(void *c, const unsigned int vr[], size_t n, double value[]) {
+    Instance *inst = usable(c);
+    int pos[N_OUT + 1];
+    if (!inst) return STATUS_ERROR;
+    if (cached_outputs(inst, vr, n, 'r', pos)) {
+        int status = inst->out_valid ? 0 : fetch(inst);
+        if (status > STATUS_WARNING) return status;
+        for (size_t i = 0; i < n; i++) value[i] = inst->out_value[pos[i]];
+        return 0;
+    }
+    PASS_THROUGH(inst, WRAPPED(GetReal2, fmi2GetReal)(c, vr, n, value));
+}
+
+static int get_ints2(void *c, const unsigned int vr[], size_t n, int value[], char type,
+                     void **slot, const char *name) {
+    Instance *inst = usable(c);
+    int pos[N_OUT + 1];
+    if (!inst) return STATUS_ERROR;
+    if (cached_outputs(inst, vr, n, type, pos)) {
+        int status = inst->out_valid ? 0 : fetch(inst);
+        if (status > STATUS_WARNING) return status;
+        for (size_t i = 0; i < n; i++)
+            value[i] = type == 'b' ? inst->out_value[pos[i]] != 0.0 : (int)inst->out_value[pos[i]];
+        return 0;
+    }
+    PASS_THROUGH(inst, ((GetInt2)wrapped(slot, name))(c, vr, n, value));
+}
+
+EXPORT int fmi2GetInteger(void *c, const unsigned int vr[], size_t n, int value[]) {
+    return get_ints2(c, vr, n, value, 'i', &w_fmi2GetInteger, "fmi2GetInteger");
+}
+
+EXPORT int fmi2GetBoolean(void *c, const unsigned int vr[], size_t n, int value[]) {
+    return get_ints2(c, vr, n, value, 'b', &w_fmi2GetBoolean, "fmi2GetBoolean");
+}
+
+EXPORT int fmi2GetFMUstate(void *c, void *state) {
+    Instance *inst = usable(c);
+    if (!inst) return STATUS_ERROR;
+    PASS_THROUGH(inst, WRAPPED(State2, fmi2GetFMUstate)(c, state));
+}
+
+EXPORT int fmi2SetFMUstate(void *c, void *state) {
+    Instance *inst = usable(c);
+    if (!inst) return STATUS_ERROR;
+    inst->out_valid = 0;
+    PASS_THROUGH(inst, WRAPPED(State2, fmi2SetFMUstate)(c, state));
+}
+
+EXPORT int fmi2DoStep(void *c, double t, double h, int noSetPrior) {
+    Instance *inst = usable(c);
+    if (!inst) return STATUS_ERROR;
+    inst->out_valid = 0;
+    PASS_THROUGH(inst, ((int (*)(void *, double, double, int))wrapped(
+                           &w_fmi2DoStep, "fmi2DoStep"))(c, t, h, noSetPrior));
+}
+
+EXPORT int fmi2ExitInitializationMode(void *c) {
+    Instance *inst = usable(c);
+    if (!inst) return STATUS_ERROR;
+    inst->worst = 0;
+    int status = status_of(inst, WRAPPED(Call2, fmi2ExitInitializationMode)(c));
+    inst->io_on = status <= STATUS_WARNING && N_IN + N_OUT > 0;
+    inst->out_valid = 0;
+    return status;
+}
+
+EXPORT int fmi2Terminate(void *c) {
+    Instance *inst = usable(c);
+    if (!inst) return STATUS_ERROR;
+    PASS_THROUGH(inst, WRAPPED(Call2, fmi2Terminate)(c));
+}
+
+EXPORT int fmi2Reset(void *c) {
+    Instance *inst = usable(c);
+    if (!inst) return STATUS_ERROR;
+    inst->io_on = inst->out_valid = inst->n_dirty = 0;
+    memset(inst->in_dirty, 0, sizeof inst->in_dirty);
+    inst->worst = 0;
+    return status_of(inst, WRAPPED(Call2, fmi2Reset)(c));
+}
 EXPORT int fmi2SetDebugLogging(void *c, int loggingOn, size_t n, const char *const categories[]) {
     Instance *inst = find(c);
     if (!inst) return STATUS_ERROR;
@@ -422,42 +631,211 @@ EXPORT void *fmi3InstantiateCoSimulation(const char *name, const char *token,
     return inst->handle;
 }
 
-#define CALL3(fname, proto, args)                                                        \
-    EXPORT int fname proto {                                                              \
-        static void *cached;                                                              \
-        if (!cached) cached = real(#fname);                                               \
-        Instance *inst = find(c);                                                         \
-        int (*f) proto = (int(*) proto)cached;                                            \
-        if (!inst || !f) return STATUS_ERROR;                                             \
-        if (inst->fatal) return STATUS_ERROR;                                             \
-        inst->worst = 0;                                                                  \
-        return status_of(inst, f args);                                                   \
-    }
 
-CALL3(fmi3ExitInitializationMode, (void *c), (c))
-CALL3(fmi3Terminate, (void *c), (c))
-CALL3(fmi3Reset, (void *c), (c))
-CALL3(fmi3DoStep,
-      (void *c, double t, double h, int noSetPrior, int *eventHandlingNeeded,
-       int *terminateSimulation, int *earlyReturn, double *lastSuccessfulTime),
-      (c, t, h, noSetPrior, eventHandlingNeeded, terminateSimulation, earlyReturn,
-       lastSuccessfulTime))
+/* the wrapper's functions the front calls (resolved on first use) */
+typedef int (*SetF64)(void *, const unsigned int *, size_t, const double *, size_t);
+typedef int (*GetF64)(void *, const unsigned int *, size_t, double *, size_t);
+typedef int (*SetI32)(void *, const unsigned int *, size_t, const int *, size_t);
+typedef int (*GetI32)(void *, const unsigned int *, size_t, int *, size_t);
+typedef int (*SetB3)(void *, const unsigned int *, size_t, const unsigned char *, size_t);
+typedef int (*GetB3)(void *, const unsigned int *, size_t, unsigned char *, size_t);
+typedef int (*Call3)(void *);
+typedef int (*State3)(void *, void *);
+#define WRAPPED(type, name) ((type)wrapped(&w_##name, #name))
+static void *w_fmi3SetFloat64, *w_fmi3GetFloat64, *w_fmi3SetInt32, *w_fmi3GetInt32,
+    *w_fmi3SetBoolean, *w_fmi3GetBoolean, *w_fmi3GetFMUState, *w_fmi3SetFMUState,
+    *w_fmi3DoStep, *w_fmi3ExitInitializationMode, *w_fmi3EnterInitializationMode,
+    *w_fmi3Terminate, *w_fmi3Reset;
+static void *wrapped(void **slot, const char *name) {
+    if (!*slot) *slot = real(name);
+    return *slot;
+}
+
+static int flush(Instance *inst) {
+    if (!inst->n_dirty) return 0;
+    unsigned int vrs[N_IN + 1];
+    double values[N_IN + 1];
+    size_t n = 0;
+    for (int i = 0; i < N_IN; i++) {
+        if (!inst->in_dirty[i]) continue;
+        vrs[n] = BULK_BASE + in_vrs[i];
+        values[n++] = inst->in_value[i];
+        inst->in_dirty[i] = 0;
+    }
+    inst->n_dirty = 0;
+    return WRAPPED(SetF64, fmi3SetFloat64)(inst->handle, vrs, n, values, n);
+}
+
+static int fetch(Instance *inst) {
+    unsigned int vrs[N_OUT + 1];
+    for (int i = 0; i < N_OUT; i++) vrs[i] = BULK_BASE + out_vrs[i];
+    int status = WRAPPED(GetF64, fmi3GetFloat64)(inst->handle, vrs, N_OUT, inst->out_value,
+                                                 N_OUT);
+    inst->out_valid = status <= STATUS_WARNING;
+    return status;
+}
+
+static Instance *usable(void *c) {
+    Instance *inst = find(c);
+    return inst && !inst->fatal && real_lib ? inst : NULL;
+}
+
+#define PASS_THROUGH(inst, call)                                                          \
+    do {                                                                                  \
+        int flushed = flush(inst);                                                        \
+        if (flushed > STATUS_WARNING) return flushed;                                     \
+        inst->worst = 0;                                                                  \
+        return status_of(inst, call);                                                     \
+    } while (0)
+
+EXPORT int fmi3SetFloat64(void *c, const unsigned int vr[], size_t n, const double value[],
+                          size_t nValues) {
+    Instance *inst = usable(c);
+    if (!inst) return STATUS_ERROR;
+    if (n == nValues && cache_inputs(inst, vr, n, 'r', value, NULL, NULL)) return 0;
+    inst->out_valid = 0;
+    PASS_THROUGH(inst, WRAPPED(SetF64, fmi3SetFloat64)(c, vr, n, value, nValues));
+}
+
+EXPORT int fmi3SetInt32(void *c, const unsigned int vr[], size_t n, const int value[],
+                        size_t nValues) {
+    Instance *inst = usable(c);
+    if (!inst) return STATUS_ERROR;
+    if (n == nValues && cache_inputs(inst, vr, n, 'i', NULL, value, NULL)) return 0;
+    inst->out_valid = 0;
+    PASS_THROUGH(inst, WRAPPED(SetI32, fmi3SetInt32)(c, vr, n, value, nValues));
+}
+
+EXPORT int fmi3SetInt64(void *c, const unsigned int vr[], size_t n, const long long value[],
+                        size_t nValues) {  /* Enumerations (mode): not cached, statuses */
+    static void *w;
+    Instance *inst = usable(c);
+    if (!inst) return STATUS_ERROR;
+    inst->out_valid = 0;
+    PASS_THROUGH(inst, ((int (*)(void *, const unsigned int *, size_t, const long long *,
+                                 size_t))wrapped(&w, "fmi3SetInt64"))(c, vr, n, value, nValues));
+}
+
+EXPORT int fmi3SetBoolean(void *c, const unsigned int vr[], size_t n,
+                          const unsigned char value[], size_t nValues) {
+    Instance *inst = usable(c);
+    if (!inst) return STATUS_ERROR;
+    if (n == nValues && cache_inputs(inst, vr, n, 'b', NULL, NULL, value)) return 0;
+    inst->out_valid = 0;
+    PASS_THROUGH(inst, WRAPPED(SetB3, fmi3SetBoolean)(c, vr, n, value, nValues));
+}
+
+/* outputs from the cache: 0 served, 1 not cached, > 1 the status of a failed fetch */
+static int from_cache(Instance *inst, const unsigned int vr[], size_t n, size_t nValues,
+                      char type, int pos[]) {
+    if (n != nValues || !cached_outputs(inst, vr, n, type, pos)) return 1;
+    int status = inst->out_valid ? 0 : fetch(inst);
+    return status > STATUS_WARNING ? status : 0;
+}
+
+EXPORT int fmi3GetFloat64(void *c, const unsigned int vr[], size_t n, double value[],
+                          size_t nValues) {
+    Instance *inst = usable(c);
+    int pos[N_OUT + 1];
+    if (!inst) return STATUS_ERROR;
+    int cached = from_cache(inst, vr, n, nValues, 'r', pos);
+    if (cached == 0) {
+        for (size_t i = 0; i < n; i++) value[i] = inst->out_value[pos[i]];
+        return 0;
+    }
+    if (cached > 1) return cached;
+    PASS_THROUGH(inst, WRAPPED(GetF64, fmi3GetFloat64)(c, vr, n, value, nValues));
+}
+
+EXPORT int fmi3GetInt32(void *c, const unsigned int vr[], size_t n, int value[],
+                        size_t nValues) {
+    Instance *inst = usable(c);
+    int pos[N_OUT + 1];
+    if (!inst) return STATUS_ERROR;
+    int cached = from_cache(inst, vr, n, nValues, 'i', pos);
+    if (cached == 0) {
+        for (size_t i = 0; i < n; i++) value[i] = (int)inst->out_value[pos[i]];
+        return 0;
+    }
+    if (cached > 1) return cached;
+    PASS_THROUGH(inst, WRAPPED(GetI32, fmi3GetInt32)(c, vr, n, value, nValues));
+}
+
+EXPORT int fmi3GetBoolean(void *c, const unsigned int vr[], size_t n, unsigned char value[],
+                          size_t nValues) {
+    Instance *inst = usable(c);
+    int pos[N_OUT + 1];
+    if (!inst) return STATUS_ERROR;
+    int cached = from_cache(inst, vr, n, nValues, 'b', pos);
+    if (cached == 0) {
+        for (size_t i = 0; i < n; i++) value[i] = inst->out_value[pos[i]] != 0.0;
+        return 0;
+    }
+    if (cached > 1) return cached;
+    PASS_THROUGH(inst, WRAPPED(GetB3, fmi3GetBoolean)(c, vr, n, value, nValues));
+}
+
+EXPORT int fmi3GetFMUState(void *c, void *state) {
+    Instance *inst = usable(c);
+    if (!inst) return STATUS_ERROR;
+    PASS_THROUGH(inst, WRAPPED(State3, fmi3GetFMUState)(c, state));
+}
+
+EXPORT int fmi3SetFMUState(void *c, void *state) {
+    Instance *inst = usable(c);
+    if (!inst) return STATUS_ERROR;
+    inst->out_valid = 0;
+    PASS_THROUGH(inst, WRAPPED(State3, fmi3SetFMUState)(c, state));
+}
+
+EXPORT int fmi3DoStep(void *c, double t, double h, int noSetPrior, int *eventHandlingNeeded,
+                      int *terminateSimulation, int *earlyReturn, double *lastSuccessfulTime) {
+    Instance *inst = usable(c);
+    if (!inst) return STATUS_ERROR;
+    inst->out_valid = 0;
+    PASS_THROUGH(inst, ((int (*)(void *, double, double, int, int *, int *, int *, double *))
+                            wrapped(&w_fmi3DoStep, "fmi3DoStep"))(
+                           c, t, h, noSetPrior, eventHandlingNeeded, terminateSimulation,
+                           earlyReturn, lastSuccessfulTime));
+}
+
+EXPORT int fmi3ExitInitializationMode(void *c) {
+    Instance *inst = usable(c);
+    if (!inst) return STATUS_ERROR;
+    inst->worst = 0;
+    int status = status_of(inst, WRAPPED(Call3, fmi3ExitInitializationMode)(c));
+    inst->io_on = status <= STATUS_WARNING && N_IN + N_OUT > 0;
+    inst->out_valid = 0;
+    return status;
+}
+
+EXPORT int fmi3Terminate(void *c) {
+    Instance *inst = usable(c);
+    if (!inst) return STATUS_ERROR;
+    PASS_THROUGH(inst, WRAPPED(Call3, fmi3Terminate)(c));
+}
+
+EXPORT int fmi3Reset(void *c) {
+    Instance *inst = usable(c);
+    if (!inst) return STATUS_ERROR;
+    inst->io_on = inst->out_valid = inst->n_dirty = 0;
+    memset(inst->in_dirty, 0, sizeof inst->in_dirty);
+    inst->worst = 0;
+    return status_of(inst, WRAPPED(Call3, fmi3Reset)(c));
+}
 
 EXPORT int fmi3EnterInitializationMode(void *c, int toleranceDefined, double tolerance,
                                        double startTime, int stopTimeDefined, double stopTime) {
-    Instance *inst = find(c);
-    int (*enter)(void *, int, double, double, int, double) =
-        (int (*)(void *, int, double, double, int, double))real("fmi3EnterInitializationMode");
-    int (*set)(void *, const unsigned int *, size_t, const double *, size_t) =
-        (int (*)(void *, const unsigned int *, size_t, const double *, size_t))real(
-            "fmi3SetFloat64");
-    if (!inst || !enter || inst->fatal) return STATUS_ERROR;
+    Instance *inst = usable(c);
+    if (!inst) return STATUS_ERROR;
     inst->worst = 0;
     const unsigned int vr_time = VR_TIME;
-    int status = set ? set(c, &vr_time, 1, &startTime, 1) : 0;
+    int status = WRAPPED(SetF64, fmi3SetFloat64)(c, &vr_time, 1, &startTime, 1);
     if (status > STATUS_WARNING) return status_of(inst, status);
-    return status_of(inst, enter(c, toleranceDefined, tolerance, startTime, stopTimeDefined,
-                                 stopTime));
+    return status_of(inst, ((int (*)(void *, int, double, double, int, double))wrapped(
+                               &w_fmi3EnterInitializationMode, "fmi3EnterInitializationMode"))(
+                               c, toleranceDefined, tolerance, startTime, stopTimeDefined,
+                               stopTime));
 }
 
 EXPORT int fmi3SetDebugLogging(void *c, int loggingOn, size_t n, const char *const categories[]) {
