@@ -94,14 +94,33 @@ def test_start_time_grid(fmu_path):
     assert got.reals == ref.reals and got.ints == ref.ints
 
 
-def test_do_step_after_terminate_is_refused(fmu_path):
+def test_calls_after_terminate_are_refused(fmu_path):
+    """After terminate: steps and setters refused (Error), getters still answer; reset
+    makes the instance usable again."""
     with FmuTracker(fmu_path, start_values={"planner": 0}) as fmu:
         fmu.run(conveyor_scenario(T), 5, T)
+        before = fmu.outputs()
         fmu.slave.terminate()
         with pytest.raises(FMICallException) as exc:
             fmu.slave.doStep(fmu.time, T)
         assert "refused: the instance is terminated" in fmu.messages[-1][2]
         assert fmu.messages[-1][0] == 3 and exc.value.status == 3
+        for name, value in (("master_x", 1.0), ("engage", True), ("vel_sync", 100.0)):
+            with pytest.raises(FMICallException) as exc:
+                fmu.set({name: value})
+            assert exc.value.status == 3
+            assert "refused: the instance is terminated" in fmu.messages[-1][2]
+        assert fmu.outputs() == before
+        fmu.slave.reset()
+        if fmu.fmi3:
+            fmu.slave.enterInitializationMode(startTime=0.0)
+        else:
+            fmu.slave.setupExperiment(startTime=0.0)
+            fmu.slave.enterInitializationMode()
+        fmu.set({"planner": 0})
+        fmu.slave.exitInitializationMode()
+        fmu.time = 0.0
+        fmu.run(conveyor_scenario(T), 5, T)
 
 
 # -- declared ranges = accepted ranges ----------------------------------------------------

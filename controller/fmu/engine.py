@@ -258,7 +258,9 @@ _VR_ENGAGE = VR["engage"]
 BULK_BASE = 1 << 30
 _BULK_INPUT_SET = frozenset(BULK_BASE + i for i, row in enumerate(VARIABLES)
                             if row[2] == "input")
-assert [row[1] for row in VARIABLES if row[2] == "input"].count("Boolean") == 1  # engage
+#: the non-Real inputs and their type (a bulk set carries every value as a float)
+_BULK_CONVERT = [(i, bool if row[1] == "Boolean" else int) for i, row in enumerate(VARIABLES)
+                 if row[2] == "input" and row[1] != "Real"]
 #: (value references, types r/i/b) of the inputs and outputs the front library caches
 CACHED_INPUTS = [(i, row[1][0].lower()) for i, row in enumerate(VARIABLES)
                  if row[2] == "input"]
@@ -463,7 +465,8 @@ class TrackerEngine:
         v = self.v
         for vr, value in zip(vrs, values):
             v[vr - BULK_BASE] = value
-        v[_VR_ENGAGE] = bool(v[_VR_ENGAGE])  # the one Boolean input
+        for i, convert in _BULK_CONVERT:
+            v[i] = convert(v[i])
 
     def get_bulk(self, vrs) -> list:
         """The front library's bulk get (``BULK_BASE`` + vr: any variable; the wrapper reads

@@ -9,8 +9,9 @@
  *    $CANTRACK_LIBPYTHON, else the library of the Python that built the FMU (LIBPYTHON_BUILD),
  *    else libpython3.X.so.1.0 through the dynamic loader's search path.  Unless PYTHONHOME is
  *    set it points Python at the prefix of the library it loaded (<prefix>/lib/libpython*),
- *    when <prefix>/lib/python3.X/os.py exists.  Neither library is ever unloaded: Python
- *    cannot be initialised again after finalising once numpy was imported;
+ *    when <prefix>/lib/python3.X/os.py exists.  There neither library is unloaded (Python
+ *    cannot be initialised again after finalising once numpy was imported); in a Python
+ *    host the wrapper is unloaded with the front;
  * 2. returns the worst status the FMU logged during a call as that call's status (at most
  *    Error): pythonfmu can only return OK or Fatal from exitInitializationMode and OK or
  *    Discard from an FMI 2 doStep, and Fatal makes its FreeInstance crash; so the Python part
@@ -118,6 +119,7 @@ typedef struct Instance {
     void *importer_logger;
     /* the input/output cache (see "variable cache" below) */
     int io_on;           /* after a successful exitInitializationMode */
+    int terminated;      /* after fmiXTerminate: setters refused (until reset) */
     int n_dirty;
     int out_valid;
     char in_dirty[N_IN + 1];
@@ -158,6 +160,18 @@ static int status_of(Instance *inst, int status) {
     return status > logged ? status : logged;
 }
 
+static void log_error(Instance *inst, const char *text);
+
+/* FMI: after Terminate only getters, reset and free are allowed */
+static int refuse_if_terminated(Instance *inst, const char *function) {
+    if (!inst->terminated) return 0;
+    char text[256];
+    snprintf(text, sizeof text, "%s: %s refused: the instance is terminated (only get "
+             "values, reset or free it)", inst->name, function);
+    log_error(inst, text);
+    return 1;
+}
+
 /* ---- loading Python and the wrapper ---------------------------------------------------- */
 static void append(const char *fmt, ...) {
     size_t n = strlen(load_error);
@@ -179,8 +193,12 @@ static void point_python_home_at(const char *libpython) {
     if (access(probe, R_OK) == 0) setenv("PYTHONHOME", prefix, 0);
 }
 
+/* the front loaded libpython (a host without Python): then the wrapper stays loaded */
+static int loaded_python;
+
 static int load_python(void) {
     if (dlsym(RTLD_DEFAULT, "Py_IsInitialized")) return 1; /* a Python host */
+    loaded_python = 1;
     char names[8][PATH_MAX];
     int n = 0;
     const char *env = getenv("CANTRACK_LIBPYTHON");
@@ -234,6 +252,14 @@ static void load(void) {
 }
 
 static void *real(const char *name) { return real_lib ? dlsym(real_lib, name) : NULL; }
+
+/* The front is unloaded (dlclose): in a Python host the wrapper goes with it, as it would
+ * without the front (a process that loads many FMU copies does not accumulate them).  In
+ * a host without Python it stays: unloading it would finalise the Python it started, and
+ * Python cannot be initialised again once numpy was imported. */
+__attribute__((destructor)) static void unload(void) {
+    if (real_lib && !loaded_python && !instances) dlclose(real_lib);
+}
 
 /* ---- variable cache (see 6. above) ---------------------------------------------------- */
 static const unsigned int in_vrs[N_IN + 1] = IN_VRS;
@@ -310,6 +336,10 @@ static void importer_log2(Instance *inst, int status, const char *category, cons
     *q = '\0';
     logger(inst->env, inst->name, status, category, escaped);
     free(escaped);
+}
+
+static void log_error(Instance *inst, const char *text) {
+    importer_log2(inst, STATUS_ERROR, "logStatusError", text);
 }
 
 static void front_logger(void *env, const char *name, int status, const char *category,
@@ -424,6 +454,7 @@ static Instance *usable(void *c) {
 EXPORT int fmi2SetReal(void *c, const unsigned int vr[], size_t n, const double value[]) {
     Instance *inst = usable(c);
     if (!inst) return STATUS_ERROR;
+    if (refuse_if_terminated(inst, "fmi2SetReal")) return STATUS_ERROR;
     if (cache_inputs(inst, vr, n, 'r', value, NULL, NULL)) return 0;
     inst->out_valid = 0;
     PASS_THROUGH(inst, WRAPPED(SetReal2, fmi2SetReal)(c, vr, n, value));
@@ -432,6 +463,7 @@ EXPORT int fmi2SetReal(void *c, const unsigned int vr[], size_t n, const double 
 EXPORT int fmi2SetInteger(void *c, const unsigned int vr[], size_t n, const int value[]) {
     Instance *inst = usable(c);
     if (!inst) return STATUS_ERROR;
+    if (refuse_if_terminated(inst, "fmi2SetInteger")) return STATUS_ERROR;
     if (cache_inputs(inst, vr, n, 'i', NULL, value, NULL)) return 0;
     inst->out_valid = 0;
     PASS_THROUGH(inst, WRAPPED(SetInt2, fmi2SetInteger)(c, vr, n, value));
@@ -440,6 +472,7 @@ EXPORT int fmi2SetInteger(void *c, const unsigned int vr[], size_t n, const int 
 EXPORT int fmi2SetBoolean(void *c, const unsigned int vr[], size_t n, const int value[]) {
     Instance *inst = usable(c);
     if (!inst) return STATUS_ERROR;
+    if (refuse_if_terminated(inst, "fmi2SetBoolean")) return STATUS_ERROR;
     if (inst->io_on && n <= N_IN) {
         unsigned char b[N_IN + 1];
         for (size_t i = 0; i < n; i++) b[i] = value[i] != 0;
@@ -519,13 +552,18 @@ EXPORT int fmi2ExitInitializationMode(void *c) {
 EXPORT int fmi2Terminate(void *c) {
     Instance *inst = usable(c);
     if (!inst) return STATUS_ERROR;
-    PASS_THROUGH(inst, WRAPPED(Call2, fmi2Terminate)(c));
+    int flushed = flush(inst);
+    if (flushed > STATUS_WARNING) return flushed;
+    inst->worst = 0;
+    int status = status_of(inst, WRAPPED(Call2, fmi2Terminate)(c));
+    if (status <= STATUS_WARNING) inst->terminated = 1;
+    return status;
 }
 
 EXPORT int fmi2Reset(void *c) {
     Instance *inst = usable(c);
     if (!inst) return STATUS_ERROR;
-    inst->io_on = inst->out_valid = inst->n_dirty = 0;
+    inst->io_on = inst->out_valid = inst->n_dirty = inst->terminated = 0;
     memset(inst->in_dirty, 0, sizeof inst->in_dirty);
     inst->worst = 0;
     return status_of(inst, WRAPPED(Call2, fmi2Reset)(c));
@@ -555,6 +593,10 @@ static void importer_log3(Instance *inst, int status, const char *category, cons
     LogMessage3 logger = (LogMessage3)inst->importer_logger;
     if (logger && (inst->logging_on || status >= STATUS_WARNING))
         logger(inst->env, status, category, text);
+}
+
+static void log_error(Instance *inst, const char *text) {
+    importer_log3(inst, STATUS_ERROR, "logStatusError", text);
 }
 
 static void front_log_message(void *env, int status, const char *category, const char *text) {
@@ -692,6 +734,7 @@ EXPORT int fmi3SetFloat64(void *c, const unsigned int vr[], size_t n, const doub
                           size_t nValues) {
     Instance *inst = usable(c);
     if (!inst) return STATUS_ERROR;
+    if (refuse_if_terminated(inst, "fmi3SetFloat64")) return STATUS_ERROR;
     if (n == nValues && cache_inputs(inst, vr, n, 'r', value, NULL, NULL)) return 0;
     inst->out_valid = 0;
     PASS_THROUGH(inst, WRAPPED(SetF64, fmi3SetFloat64)(c, vr, n, value, nValues));
@@ -701,6 +744,7 @@ EXPORT int fmi3SetInt32(void *c, const unsigned int vr[], size_t n, const int va
                         size_t nValues) {
     Instance *inst = usable(c);
     if (!inst) return STATUS_ERROR;
+    if (refuse_if_terminated(inst, "fmi3SetInt32")) return STATUS_ERROR;
     if (n == nValues && cache_inputs(inst, vr, n, 'i', NULL, value, NULL)) return 0;
     inst->out_valid = 0;
     PASS_THROUGH(inst, WRAPPED(SetI32, fmi3SetInt32)(c, vr, n, value, nValues));
@@ -711,6 +755,7 @@ EXPORT int fmi3SetInt64(void *c, const unsigned int vr[], size_t n, const long l
     static void *w;
     Instance *inst = usable(c);
     if (!inst) return STATUS_ERROR;
+    if (refuse_if_terminated(inst, "fmi3SetInt64")) return STATUS_ERROR;
     inst->out_valid = 0;
     PASS_THROUGH(inst, ((int (*)(void *, const unsigned int *, size_t, const long long *,
                                  size_t))wrapped(&w, "fmi3SetInt64"))(c, vr, n, value, nValues));
@@ -720,6 +765,7 @@ EXPORT int fmi3SetBoolean(void *c, const unsigned int vr[], size_t n,
                           const unsigned char value[], size_t nValues) {
     Instance *inst = usable(c);
     if (!inst) return STATUS_ERROR;
+    if (refuse_if_terminated(inst, "fmi3SetBoolean")) return STATUS_ERROR;
     if (n == nValues && cache_inputs(inst, vr, n, 'b', NULL, NULL, value)) return 0;
     inst->out_valid = 0;
     PASS_THROUGH(inst, WRAPPED(SetB3, fmi3SetBoolean)(c, vr, n, value, nValues));
@@ -812,13 +858,18 @@ EXPORT int fmi3ExitInitializationMode(void *c) {
 EXPORT int fmi3Terminate(void *c) {
     Instance *inst = usable(c);
     if (!inst) return STATUS_ERROR;
-    PASS_THROUGH(inst, WRAPPED(Call3, fmi3Terminate)(c));
+    int flushed = flush(inst);
+    if (flushed > STATUS_WARNING) return flushed;
+    inst->worst = 0;
+    int status = status_of(inst, WRAPPED(Call3, fmi3Terminate)(c));
+    if (status <= STATUS_WARNING) inst->terminated = 1;
+    return status;
 }
 
 EXPORT int fmi3Reset(void *c) {
     Instance *inst = usable(c);
     if (!inst) return STATUS_ERROR;
-    inst->io_on = inst->out_valid = inst->n_dirty = 0;
+    inst->io_on = inst->out_valid = inst->n_dirty = inst->terminated = 0;
     memset(inst->in_dirty, 0, sizeof inst->in_dirty);
     inst->worst = 0;
     return status_of(inst, WRAPPED(Call3, fmi3Reset)(c));
