@@ -1,16 +1,21 @@
 """The FMU-independent part of the CanTracker FMUs: variables, stepping, errors, state.
 
 Used by the FMI 2.0 slave (``tracker_slave.py``, pythonfmu) and the FMI 3.0 slave
-(``tracker3_slave.py``, pythonfmu3); bundled into both FMUs as ``controller/fmu/engine.py``
-next to the tracker core.  No pythonfmu import here.
+(``tracker3_slave.py``, pythonfmu3); bundled into both FMUs as ``fmu/engine.py`` of the
+FMU's private package next to the tracker core (see ``build``).  No pythonfmu import here.
+Statuses: the engine logs each refusal with the status of the call (``report(msg, level)``);
+the FMUs' front library (``front.c``) returns the worst status logged during a call, since
+pythonfmu can return only OK or Fatal from most calls.
 
 Variables: ``VARIABLES`` (the FMU contract), value reference = position in the table; the
 values live in one list ``TrackerEngine.v`` indexed by value reference, which the slaves'
 get/set calls index directly (pythonfmu's generic path costs a lambda call per value).
 
-Time: one internal sample per ``sample_time`` T [s].  A communication step [t, t + n*T]
-(n >= 1 whole; relative tolerance ``STEP_TOLERANCE``) runs n tracker samples; any other step
-size is refused (logged error, ``Discard``).  The master inputs are sampled at the step
+Time: one internal sample per ``sample_time`` T [s] on the grid t0 + k*T (t0 = the start
+time).  A communication step must start where the previous one ended and end on the grid
+(both within ``STEP_TOLERANCE`` * T); it runs the samples up to its grid point, a step that
+reaches no new one is a no-op (``do_step``); anything else is refused (``Discard``).  The
+master inputs are sampled at the step
 start t and extrapolated at constant acceleration (``MotionState.extrapolated``) to each
 internal sample time t + i*T, i = 1..n; the tracker computes the setpoint of that time
 (``Tracker.update``).  The outputs at the end of the step are the setpoint at t + n*T.
@@ -25,9 +30,9 @@ tunable parameters take effect at the next engage.
 Fixed parameters (``variability=fixed``: sample_time, mode, planner, x0, y0, z0, c0) are
 frozen at exitInitializationMode; every engage uses the frozen values plus the current
 tunables.  Setting a fixed parameter afterwards is refused: logged as an error naming the
-variable and the value, and ignored (the setter cannot return an error status: pythonfmu and
-pythonfmu3 turn any exception in a setter into Fatal); setting it to the value it already
-has is accepted silently.  Reset the instance to change them.
+variable and the value (the call returns Error through the front library; an exception
+would be Fatal in pythonfmu) and ignored; setting it to the value it already has is
+accepted silently.  Reset the instance to change them.
 
 Master inputs must be finite: a step that starts with a NaN or infinite master input is
 refused (``Discard`` in FMI 2 and FMI 3) before anything changes, with an error naming the
@@ -42,24 +47,24 @@ State: ``get_state`` / ``set_state`` save and restore *all* internal state (the 
 a state can be restored any number of times.  The serialized form is a pickle (trust only
 states you saved yourself).
 
-Errors: every message goes to the FMI logger (category ``logStatusError``) and to the Python
-logger ``cantrack.fmu``.  FMI 2 (pythonfmu) forwards messages only when the importer
+Errors: every message goes to the FMI logger (category ``logStatus<level>``) and to the
+Python logger ``cantrack.fmu``.  FMI 2 (pythonfmu) forwards messages only when the importer
 instantiated with loggingOn=true, which the slave cannot see: the Python logger gets them at
 ERROR (a Python host without logging configuration prints them on stderr).  FMI 3
 (pythonfmu3) forwards errors and warnings whatever loggingOn: the Python logger gets them at
 DEBUG only (no second copy on stderr).  Messages carry no trailing line break.
 
-An exception inside a step is logged with its traceback and the step is refused (FMI 2:
-``fmi2Discard``, pythonfmu has no other status; FMI 3: ``fmi3Error``); the instance then
+An exception inside a step is logged with its traceback and the step is refused
+(``Error``); the instance then
 refuses further steps (each refusal repeats the first error) until a saved FMU state is set
 or it is reset, because its internal state may be half-updated.  An invalid tunable parameter
 at an engage edge is found before anything changes: that step is refused (``Discard``) and
-may be repeated after fixing the value.  Errors at initialisation (invalid fixed parameter,
-planner that cannot be loaded) are logged with the traceback and every step is refused with
-that message; they are not raised, because pythonfmu turns an exception into ``Fatal`` and
-then crashes the process on ``Terminate`` / ``FreeInstance`` (pythonfmu 0.7.0, pythonfmu3
-0.3.4).  A step size that is not a whole multiple of ``sample_time`` is refused (``Discard``)
-without failing the instance.
+may be repeated after fixing the value.  Invalid parameters at initialisation (checked
+against their declared ranges, ``parameter_errors``; planner 1 without ruckig) are one
+logged error line, no traceback: exitInitializationMode returns Error (front library) and
+every step is refused with that line.  They are not raised, because pythonfmu turns an
+exception into ``Fatal`` and then crashes the process on ``Terminate`` / ``FreeInstance``
+(pythonfmu 0.7.0, pythonfmu3 0.3.4).
 """
 
 from __future__ import annotations

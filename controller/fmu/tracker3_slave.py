@@ -2,9 +2,10 @@
 
 The same engine as the FMI 2.0 FMU (``controller/fmu/engine.py``: variables, step semantics,
 errors, FMU state), with FMI 3 types: Real -> Float64 (with units), Integer -> Int32,
-Boolean -> Boolean, plus the independent variable ``time`` [s] (value reference 52, after the
-52 variables of the FMI 2.0 FMU, which keep their value references).  pythonfmu3 writes the
-units, ``InitialUnknown`` and ``Output`` entries itself.
+Boolean -> Boolean, ``mode`` an Enumeration (Int64), plus the independent variable ``time``
+[s] (value reference 52, after the 52 variables of the FMI 2.0 FMU, which keep their value
+references).  pythonfmu3 writes the units, ``InitialUnknown`` and ``Output`` entries;
+``to_xml`` adds their dependencies, min/max, the enumeration and fixedInternalStepSize.
 
 FMI 3 statuses: a refused step (step size, non-finite master input, invalid tunable at
 engage) gives ``fmi3Discard`` -- the FMU is in the state it had before the call and the step

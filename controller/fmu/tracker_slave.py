@@ -1,16 +1,17 @@
 """The CanTracker FMU slave (FMI 2.0 Co-Simulation, pythonfmu).
 
 This file is the pythonfmu slave script.  ``cantrack fmu build`` copies it into the FMU under
-a content-hashed module name (``cantracker_<hash>.py``, see ``controller.fmu.build``) next to
-a copy of the tracker core (``controller/__init__.py``, ``controller/errors.py``,
-``controller/tracking/``) and of ``controller/fmu/engine.py``, which holds the variables,
-the step semantics, the error handling and the FMU state (see its docstring).  This class
-maps pythonfmu's calls onto the engine and writes the model description extras pythonfmu
-lacks (units incl. "1" for the dimensionless factors, min/max, output dependencies,
+a content-hashed module name (``cantracker_<hash>.py``, see ``controller.fmu.build``), its
+``controller``/``pythonfmu`` imports pointed at the FMU's private package, which holds the
+tracker core and ``fmu/engine.py`` (the variables, the step semantics, the error handling
+and the FMU state: see its docstring).  This class maps pythonfmu's calls onto the engine
+and writes the model description extras pythonfmu lacks (units incl. "1" for the
+dimensionless factors, min/max, the ``Mode`` enumeration, output dependencies,
 ``InitialUnknowns``: pythonfmu issue #193).
 
-FMI 2 statuses: a refused step and an exception in a step both give ``fmi2Discard`` (a
-pythonfmu slave can return nothing else from a step); the message says which.
+FMI 2 statuses: pythonfmu returns OK or Discard from a step; the FMU's front library turns a
+step whose logged status is Error (failed or terminated instance, exception) into
+``fmi2Error`` (see ``front.c``); the message says which.
 """
 
 from __future__ import annotations
