@@ -33,15 +33,17 @@ How it is put together (the upstream build systems' quirks with a current gcc/cm
 from __future__ import annotations
 
 import fcntl
+import hashlib
 import os
 import shutil
 import subprocess
+import tarfile
 import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from .vendor import VENDOR_ENV, VendorError, _key, _unpack, cache_dir, vendor_dir
+from .vendor import VENDOR_ENV, VendorError, cache_dir, vendor_dir
 
 ARCHIVES = ("Reference-FMUs", "FMUComplianceChecker", "fmi-library", "zlib", "sundials")
 TOOLS = ("gcc", "cmake", "make")
@@ -96,6 +98,20 @@ def tools_available(directory: Path | None = None) -> tuple[bool, str]:
         return False, ("independent FMI importers: libxml2 headers missing "
                        f"({LIBXML2_HEADER}; apt-get install libxml2-dev)")
     return True, ", ".join(p.name for p in archives(d).values() if p is not None)
+
+
+def _key(paths: list[Path]) -> str:
+    """Content hash of the archives (the cache directory's name)."""
+    h = hashlib.sha256()
+    for p in paths:
+        h.update(p.name.encode() + b"\0" + hashlib.sha256(p.read_bytes()).digest())
+    return h.hexdigest()[:16]
+
+
+def _unpack(archive: Path, into: Path) -> None:
+    into.mkdir(parents=True, exist_ok=True)
+    with tarfile.open(archive) as tf:
+        tf.extractall(into, filter="tar")
 
 
 def _run(args: list[str], cwd: Path, log: Path, env: dict | None = None) -> None:
@@ -202,7 +218,7 @@ def build_tools(directory: Path | None = None, cache: Path | None = None) -> Fmi
             for name in ARCHIVES:
                 archive = found[name]
                 assert archive is not None
-                _unpack(archive, work / "src" / name, strip_top=False)
+                _unpack(archive, work / "src" / name)
                 src[name] = _source_root(work / "src" / name)
             _build_fmusim(src, work, log)
             _build_checker(src, work, log)
