@@ -127,7 +127,7 @@ def test_calls_after_terminate_are_refused(fmu_path):
 def _ranges():
     """(name, accepted values, refused values) from the declared min/max/enumeration."""
     out = []
-    for name, typ, causality, _v, start, _u, _d, extra in VARIABLES:
+    for name, typ, causality, _v, _start, _u, _d, extra in VARIABLES:
         if causality != "parameter":
             continue
         if "enumeration" in extra:

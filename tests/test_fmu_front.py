@@ -14,6 +14,7 @@ pytest.importorskip("pythonfmu")
 pytest.importorskip("fmpy")
 
 from fmpy import extract, read_model_description
+from fmpy.fmi1 import FMICallException
 from fmpy.fmi3 import FMU3Slave
 
 from controller.fmu.runner import FmuTracker, conveyor_scenario
@@ -91,7 +92,7 @@ def test_errors_reach_the_importer_with_logging_off(fmu_path):
     """loggingOn=false: errors and warnings are still logged (FMI), the rest is not."""
     with FmuTracker(fmu_path, start_values={"planner": 0}, logging_on=False) as fmu:
         fmu.run(conveyor_scenario(T), 3, T)
-        with pytest.raises(Exception):
+        with pytest.raises(FMICallException):
             fmu.slave.doStep(fmu.time, 1.5 * T)
         assert [m[0] for m in fmu.messages] == [2]
         assert "must end on the sample grid" in fmu.messages[0][2]

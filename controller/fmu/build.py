@@ -134,7 +134,7 @@ def _python_part(package: str) -> list[tuple[str, bytes]]:
     Bundled privately so that a host which imported another pythonfmu version first still
     gets the one matching the FMU's binary.  Its modules import each other relatively."""
     mod = importlib.import_module(package)
-    root = Path(mod.__file__).resolve().parent
+    root = Path(str(mod.__file__)).resolve().parent
     return [(f"{package}/{p.name}", p.read_bytes()) for p in sorted(root.glob("*.py"))]
 
 
@@ -324,9 +324,9 @@ def _build(model: str, slave_module: str, prefix: str, dest_dir: str | Path,
     else:
         slave = importlib.import_module(f"controller.fmu.{slave_module}")
         variables, summary = slave.VARIABLES, slave_doc
-    with tempfile.TemporaryDirectory(prefix="cantrack_fmu_") as tmp, \
+    with tempfile.TemporaryDirectory(prefix="cantrack_fmu_") as tmpdir, \
             _clean_import_state(module_name):
-        tmp = Path(tmp)
+        tmp = Path(tmpdir)
         script_dir = tmp / "script"
         script_dir.mkdir()
         script = script_dir / f"{module_name}.py"

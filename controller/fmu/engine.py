@@ -520,7 +520,7 @@ class TrackerEngine:
         """
         self._freeze(True)
         values = {n: self.v[VR[n]] for n in _PARAMETER_NAMES}
-        values.update(self.fixed)
+        values.update(self.fixed or {})
         errors = parameter_errors(values)
         if not errors and int(values["planner"]) == 1 and OPTIMAL_IMPORT_ERROR is not None:
             errors.append(f"planner=1 (optimal) needs ruckig, which cannot be imported "

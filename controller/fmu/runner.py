@@ -225,8 +225,8 @@ class FmuTracker:
             elif typ in ("Integer", "Int32"):
                 self._set_int([self.vr[name]], [int(value)])
             elif typ == "Enumeration":  # FMI 2: an Integer; FMI 3: Int64
-                (self.slave.setInt64 if self.fmi3 else self.slave.setInteger)(
-                    [self.vr[name]], [int(value)])
+                setter = getattr(self.slave, "setInt64" if self.fmi3 else "setInteger")
+                setter([self.vr[name]], [int(value)])
             elif typ == "Boolean":
                 self.slave.setBoolean([self.vr[name]], [bool(value)])
             else:

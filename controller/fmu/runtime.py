@@ -20,6 +20,7 @@ from __future__ import annotations
 import importlib
 import sys
 from types import ModuleType
+from typing import Any
 
 #: pip requirement of the compiled dependencies (keep in step with pyproject.toml)
 NUMPY_REQUIREMENT = "numpy>=1.24"
@@ -83,7 +84,7 @@ class EngineStateMixin:
     ``TrackerEngine``: get/set and (de)serialisation delegate to the engine (all internal
     state).  Shared by the FMI 2 and FMI 3 slaves; list it before the pythonfmu base class."""
 
-    _engine: object
+    _engine: Any  # a TrackerEngine (not imported here: runtime needs no numpy)
 
     def _get_fmu_state(self) -> dict:
         return self._engine.get_state()
