@@ -1,0 +1,302 @@
+"""The controller's PLC node on a real SocketCAN vcan0, commanded by CANopenNode.
+
+CANopenLinux's ``canopend`` (built by the harness from ../shared/vendor,
+:mod:`controller.testing.vendor`) is the PLC: node 32, the ``commander`` of the ``.plc``
+section, its heartbeat set to 100 ms (1017h written through its own gateway); ``cocomm``
+(CANopenLinux's command-line client of canopend's gateway) is the independent SDO client.
+A second ``canopend`` (node 33, no heartbeat) is "any other node on the bus".
+
+One command (one VM boot for the module; natively where the kernel has vcan) runs this file
+as a script (:func:`orchestrate`):
+
+1. ``candump -L vcan0`` records the bus; ``sim-devices`` (encoder, x, y) and canopend 32;
+2. ``cantrack run`` with ``examples/bus/vcan.yml`` plus a ``.plc`` section (commander 32,
+   consumer time 3 s, reaction ``desync``), ``--engage-at`` not given: the PLC engages;
+3. cocomm through canopend 32: 2011h until 7, 1008h (segmented), engage 2005h = 5, a value
+   refused (06090030h), COB-ID writes (restricted 06090030h, a drive's RPDO 08000000h), a
+   configuration object (08000020h), NMT pre-operational (08000022h), start again;
+4. cocomm through canopend 33 while 32 is silenced (its 1017h = 0): the commander's heartbeat
+   is lost -> the controller de-syncs (event) and every motion write is refused (08000021h);
+5. SIGTERM to the run: exit 3 (a fault was seen and handled: the commander's heartbeat
+   lost), the report lists the PLC node's events.
+
+On the host the capture is decoded by tshark's CANopen dissector.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+VCAN_YML = ROOT / "examples" / "bus" / "vcan.yml"
+MASTER, PLC, OTHER = 1, 32, 33
+CANTRACK = [sys.executable, "-m", "controller.cli"]
+
+
+def plc_yml(out: Path) -> Path:
+    text = VCAN_YML.read_text().replace("../../eds/", f"{ROOT / 'eds'}/")
+    # (heartbeat time-outs of 3 s: the VM runs at 0.1-0.2x real time on a loaded machine;
+    #  this tier is about the contract, not the timing)
+    assert "heartbeat_multiplier: 4.0" in text
+    text = text.replace("heartbeat_multiplier: 4.0", "heartbeat_multiplier: 15.0")
+    text += (f"\n.plc:\n  commander: {PLC}\n  commander_heartbeat_ms: 3000\n"
+             "  on_commander_lost: desync\n")
+    p = out / "plc.yml"
+    p.write_text(text)
+    return p
+
+
+# ---------------------------------------------------------------------------------------------
+# the orchestrator (runs inside the VM / on the native vcan0)
+
+class Gateway:
+    """canopend with its command socket (on a tmpfs: a unix socket cannot live on 9p)."""
+
+    def __init__(self, canopend: Path, cocomm: Path, channel: str, node: int, out: Path):
+        self.cocomm = cocomm
+        self.dir = Path(tempfile.mkdtemp(dir="/run" if os.access("/run", os.W_OK) else None))
+        self.sock = self.dir / "co.sock"
+        storage = out / f"gw{node}-storage"
+        storage.mkdir(exist_ok=True)
+        self.log = open(out / f"canopend{node}.out", "wb")  # noqa: SIM115
+        self.proc = subprocess.Popen([str(canopend), channel, "-i", str(node),
+                                      "-s", f"{storage}/", "-c", f"local-{self.sock}"],
+                                     stdout=self.log, stderr=subprocess.STDOUT)
+        self.seq = 0
+        self.done: list[dict] = []
+
+    def ready(self, timeout_s: float = 30.0) -> None:
+        t_end = time.monotonic() + timeout_s
+        while not self.sock.exists():
+            if self.proc.poll() is not None or time.monotonic() > t_end:
+                raise RuntimeError(f"canopend: no command socket {self.sock}")
+            time.sleep(0.05)
+
+    def __call__(self, command: str, tag: str | None = None) -> dict:
+        for _ in range(3):  # (cocomm's own SDO time-out, 05040000h, on a loaded VM: again)
+            self.seq += 1
+            line = f"[{self.seq}] {command}"
+            r = subprocess.run([str(self.cocomm), "-s", str(self.sock), line],
+                               capture_output=True, timeout=30, check=False)
+            res = {"tag": tag or command, "cmd": line, "rc": r.returncode,
+                   "out": r.stdout.decode(errors="replace").strip(),
+                   "err": r.stderr.decode(errors="replace").strip()}
+            self.done.append(res)
+            if "ERROR:0x05040000" not in res["err"]:
+                break
+        return res
+
+    def until(self, command: str, value: str, timeout_s: float, tag: str) -> dict:
+        t_end = time.monotonic() + timeout_s
+        while True:
+            r = self(command, tag)
+            if r["rc"] == 0 and r["out"] == value:
+                return r
+            if time.monotonic() > t_end:
+                raise RuntimeError(f"{command}: not {value} within {timeout_s} s ({r})")
+            time.sleep(0.5)  # (each pass is an SDO round trip: the cue is the answer)
+
+    def stop(self) -> None:
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGTERM)
+            try:
+                self.proc.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+        self.log.close()
+
+
+def orchestrate(out: Path, channel: str, canopend: Path, cocomm: Path) -> int:
+    from controller.testing.candump import CandumpCapture
+    from controller.testing.e2e import wait_file
+
+    out.mkdir(parents=True, exist_ok=True)
+    cfg = plc_yml(out)
+    bus = ["-i", "socketcan", "-c", channel]
+    res: dict = {"ok": False}
+    cap = CandumpCapture(channel, out / "bus.log").start()
+    sim_log = open(out / "sim.out", "wb")  # noqa: SIM115
+    run_log = open(out / "run.out", "wb")  # noqa: SIM115
+    sim = subprocess.Popen(CANTRACK + ["sim-devices", str(cfg), *bus, "-q",
+                                       "--ready-file", str(out / "ready.json")],
+                           stdout=sim_log, stderr=subprocess.STDOUT)
+    plc = Gateway(canopend, cocomm, channel, PLC, out)
+    other = None
+    run = None
+    try:
+        plc.ready()
+        plc(f"{PLC} write 0x1017 0 u16 100", "plc heartbeat on")  # (its own OD: local)
+        wait_file(out / "ready.json", [sim], 90)
+        run = subprocess.Popen(CANTRACK + ["run", str(cfg), *bus, "-q", "--duration", "120",
+                                           "--report", str(out / "run.json")],
+                               stdout=run_log, stderr=subprocess.STDOUT)
+        plc.until(f"{MASTER} read 0x2011 0 u8", "7", 120, "access")
+        plc(f"{MASTER} read 0x1008 0 vs", "name")
+        plc(f"{MASTER} read 0x2020 1 u8", "commander")
+        # (2011h = 7 already while the drives are enabled; the engage is taken (and answered
+        #  OK) once tracking runs: 08000022h before)
+        t_end = time.monotonic() + 60
+        while plc(f"{MASTER} write 0x2005 0 u8 5", "engage")["rc"] != 0:
+            if time.monotonic() > t_end:
+                raise RuntimeError("the engage was never taken")
+            time.sleep(0.5)
+        plc.until(f"{MASTER} read 0x2000 0 u8", "2", 60, "synced")
+        plc(f"{MASTER} write 0x2005 0 u8 0", "disengage")  # (before x reaches its limit)
+        plc(f"{MASTER} write 0x2005 0 u8 4", "bad engage value")
+        plc(f"{MASTER} write 0x1800 1 u32 0x20B", "cob-id change while valid")
+        plc(f"{MASTER} write 0x1800 1 u32 0x80000181", "tpdo1 off")
+        plc(f"{MASTER} write 0x1800 1 u32 0x000", "cob-id nmt")
+        plc(f"{MASTER} write 0x1800 1 u32 0x20B", "cob-id drive x rpdo1")
+        plc(f"{MASTER} write 0x1800 1 u32 0x181", "tpdo1 on")
+        plc(f"{MASTER} write 0x1017 0 u16 10", "config owned")
+        plc(f"{MASTER} preop", "nmt preop")
+        plc.until(f"{MASTER} read 0x2011 0 u8", "6", 30, "access preop")
+        plc(f"{MASTER} write 0x2005 0 u8 0", "disengage in preop")
+        plc(f"{MASTER} start", "nmt start")
+        plc.until(f"{MASTER} read 0x2011 0 u8", "7", 30, "access again")
+        # the commander falls silent; another node tries
+        other = Gateway(canopend, cocomm, channel, OTHER, out)
+        other.ready()
+        plc(f"{PLC} write 0x1017 0 u16 0", "plc heartbeat off")
+        other.until(f"{MASTER} read 0x2011 0 u8", "5", 30, "access lost")
+        other(f"{MASTER} read 0x2000 0 u8", "state after loss")
+        other(f"{MASTER} write 0x2005 0 u8 5", "engage by another node")
+        other(f"{MASTER} write 0x2004 0 u8 1", "trigger by another node")
+        other(f"{MASTER} read 0x2012 0 u32", "refused count")
+        run.send_signal(signal.SIGTERM)
+        res["run_rc"] = run.wait(timeout=60)
+        res["ok"] = True
+    except Exception as exc:  # noqa: BLE001 -- in result.json; exit code 1
+        res["error"] = f"{type(exc).__name__}: {exc}"
+    finally:
+        res["cocomm"] = plc.done + (other.done if other is not None else [])
+        for g in (plc, other):
+            if g is not None:
+                g.stop()
+        for p in (run, sim):
+            if p is not None and p.poll() is None:
+                p.send_signal(signal.SIGTERM)
+                try:
+                    p.wait(timeout=30)
+                except subprocess.TimeoutExpired:
+                    p.kill()
+        sim_log.close()
+        run_log.close()
+        info = cap.stop()
+        res["capture_frames"] = info.frames
+        (out / "result.json").write_text(json.dumps(res, indent=1))
+    return 0 if res["ok"] else 1
+
+
+# ---------------------------------------------------------------------------------------------
+# the tests
+
+pytestmark = pytest.mark.vcan
+
+
+def _tail(path: Path) -> str:
+    return path.read_text(errors="replace")[-2500:] if path.is_file() else "(none)"
+
+
+@pytest.fixture(scope="module")
+def canopen_stack(pytestconfig):
+    from controller.testing.vendor import VendorError, build_stack, stack_available
+
+    ok, why = stack_available()
+    required = pytestconfig.getoption("--vcan-required") or os.environ.get("CI") == "true"
+    if not ok:
+        if required:
+            pytest.fail(why, pytrace=False)
+        pytest.skip(why)
+    try:
+        return build_stack()
+    except VendorError as exc:
+        pytest.fail(str(exc), pytrace=False)
+
+
+@pytest.fixture(scope="module")
+def session(canopen_stack, vcan_runner, tmp_path_factory) -> dict:
+    scratch = tmp_path_factory.mktemp("vcan-plc")
+    out = scratch / "plc"
+    r = vcan_runner.run([sys.executable, str(Path(__file__).resolve()), "--out", str(out),
+                         "--canopend", str(canopen_stack.canopend),
+                         "--cocomm", str(canopen_stack.cocomm)],
+                        timeout_s=400, scratch_dir=scratch, cwd=ROOT)
+    res = out / "result.json"
+    ok = r.returncode == 0 and not r.timed_out and res.is_file()
+    assert ok, (f"orchestrator failed ({r.mode}, rc {r.returncode}, timed out {r.timed_out})\n"
+                f"--- result.json ---\n{_tail(res)}\n--- stderr ---\n{r.stderr[-3000:]}\n"
+                f"--- run ---\n{_tail(out / 'run.out')}\n--- sim ---\n{_tail(out / 'sim.out')}")
+    result = json.loads(res.read_text())
+    result["report"] = json.loads((out / "run.json").read_text())
+    result["out"] = out
+    return result
+
+
+def _c(session) -> dict[str, dict]:
+    out: dict[str, dict] = {}
+    for c in session["cocomm"]:
+        out[c["tag"]] = c  # (the last of a polled command)
+    return out
+
+
+def _abort(c: dict) -> str:
+    return c["err"].split("ERROR:")[-1].split()[0] if "ERROR:" in c["err"] else ""
+
+
+def test_plc_commands_the_controller_through_cocomm(session):
+    c = _c(session)
+    assert c["access"]["out"] == "7"
+    assert c["name"]["out"] == '"cantrack controller"'  # segmented upload
+    assert c["commander"]["out"] == str(PLC)
+    assert c["engage"]["rc"] == 0 and c["synced"]["out"] == "2"
+    # the commander's heartbeat was lost (step 4): a fault seen and handled -> exit 3
+    assert session["run_rc"] == 3
+    assert session["report"]["exit_code"] == 3
+
+
+def test_refusals_seen_by_cocomm(session):
+    c = _c(session)
+    assert _abort(c["bad engage value"]) == "0x06090030"
+    assert _abort(c["cob-id change while valid"]) == "0x06090030"
+    assert c["tpdo1 off"]["rc"] == 0 and c["tpdo1 on"]["rc"] == 0
+    assert _abort(c["cob-id nmt"]) == "0x06090030"
+    assert _abort(c["cob-id drive x rpdo1"]) == "0x08000000"
+    assert _abort(c["config owned"]) == "0x08000020"
+    assert _abort(c["disengage in preop"]) == "0x08000022"
+    assert c["access preop"]["out"] == "6" and c["access again"]["out"] == "7"
+
+
+def test_commander_lost_desyncs_and_other_nodes_are_refused(session):
+    c = _c(session)
+    assert c["access lost"]["out"] == "5"  # OPERATIONAL, in the window, no commander
+    assert c["state after loss"]["out"] in ("3", "0")  # DESYNCING or already OFF
+    assert _abort(c["engage by another node"]) == "0x08000021"
+    assert _abort(c["trigger by another node"]) == "0x08000021"
+    assert int(c["refused count"]["out"]) >= 3  # (pre-op + the two above)
+    kinds = [e["kind"] for e in session["report"]["events"]]
+    assert "plc_commander_lost" in kinds and "plc_no_commander" in kinds
+    lost = [e for e in session["report"]["events"] if e["kind"] == "plc_commander_lost"][0]
+    assert lost["reaction"] == "de-sync on the path"
+
+
+if __name__ == "__main__":
+    import argparse
+
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--out", type=Path, required=True)
+    ap.add_argument("--canopend", type=Path, required=True)
+    ap.add_argument("--cocomm", type=Path, required=True)
+    ap.add_argument("--channel", default=os.environ.get("CANTRACK_CAN_CHANNEL", "vcan0"))
+    a = ap.parse_args()
+    sys.path.insert(0, str(ROOT))
+    sys.exit(orchestrate(a.out, a.channel, a.canopend, a.cocomm))
