@@ -95,7 +95,8 @@ class RuckigReference:
         self.duration_s = 0.0
         self._setup(len(self.p))
 
-    def step(self, mp: Vec, mv: Vec, ma: Vec) -> tuple[Vec, Vec, Vec, bool]:
+    def step(self, mp: Vec, mv: Vec, ma: Vec,
+             mj: Vec | None = None) -> tuple[Vec, Vec, Vec, bool]:
         """One sample towards the master state (mp, mv, ma) of this sample."""
         T = self.T
         s = SCALE

@@ -5,6 +5,7 @@ Run from the repository root::
     python benchmarks/tracking.py                      # ~200 random cases + regression set
     python benchmarks/tracking.py --quick              # ~30 cases (what the smoke test runs)
     python benchmarks/tracking.py --markdown out.md --json out.json
+    python benchmarks/tracking.py --no-encoder     # the planner table only
 
 Every planner runs inside the same :class:`controller.tracking.Tracker` and is measured by the
 same :func:`controller.tracking.metrics.analyze` on the setpoint stream.  The reference
@@ -677,6 +678,9 @@ def main(argv: list[str] | None = None) -> dict:
                     help="comma-separated subset (the reference always runs)")
     ap.add_argument("--no-regression", action="store_true", help="skip the fixed scenarios")
     ap.add_argument("--no-timing", action="store_true", help="skip the compute-time figures")
+    ap.add_argument("--no-encoder", action="store_true",
+                    help="skip the encoder table (benchmarks/encoder.py: S-curve belts, "
+                         "quantised/late/jittery/glitchy encoders through the conditioner)")
     ap.add_argument("--jobs", type=int, default=min(2, os.cpu_count() or 1),
                     help="worker processes (default 2)")
     ap.add_argument("--markdown", metavar="FILE", help="also write the table to FILE")
@@ -752,6 +756,15 @@ def main(argv: list[str] | None = None) -> dict:
         "runs": runs,
     }
     md = render_markdown(result)
+    if not args.no_encoder:
+        from benchmarks import encoder  # noqa: PLC0415
+        enc_args = ["--seed", str(args.seed)] + (["--quick"] if args.quick else [])
+        enc = encoder.main(enc_args, echo=False)
+        md += "\n" + enc["markdown"]
+        result["encoder"] = {"targets": [list(t) for t in enc["targets"]],
+                             "figures": {f"{c * 1e3:g}um-{T * 1e3:g}ms-{n}": f
+                                         for (c, T, n), f in enc["figures"].items()},
+                             "extra": enc["extra"]}
     result["markdown"] = md
     print(md)
     if args.markdown:

@@ -201,6 +201,61 @@ def _csv_states(master: "CsvMaster", T: float, kmin: int, n: int) -> list[Motion
 
 
 # -- the master the tracker sees ------------------------------------------------------------
+def _conditioned_states(scenario: "Scenario") -> tuple[list[MotionState], list[MotionState]]:
+    """(true, fed) with a ``conditioning`` section: per axis (x, y, z with the frame's
+    translation limits, c with its rotation limits) the encoder's quantised, late, jittered
+    samples through a :class:`MasterConditioner`, warmed up on the master's pre-history so
+    that it is valid at t = 0."""
+    from ..tracking.conditioning import ConditioningParams, EncoderModel, MasterConditioner
+    from .reading import CsvMaster
+
+    spec = scenario.conditioning
+    assert spec is not None
+    params = scenario.params
+    T = params.sample_time_s
+    n = scenario.n_samples
+
+    def cparams(res: float, frame) -> ConditioningParams:
+        return ConditioningParams(T, EncoderModel(res, spec.latency_samples), frame,
+                                  lead_samples=0.0, design=spec.design,
+                                  jerk_reserve=spec.jerk_reserve, outlier_mm=spec.outlier_mm,
+                                  max_outliers=spec.max_outliers)
+
+    ps = [cparams(spec.resolution_mm, params.master_max_trans)] * 3 + [
+        cparams(spec.resolution_deg, params.master_max_rot)]
+    warm = max(p.warmup for p in ps) + spec.latency_samples + 2
+    conds = [MasterConditioner(p) for p in ps]
+    L = spec.latency_samples
+    rng = np.random.default_rng(spec.seed)
+    delta = rng.uniform(-spec.jitter, spec.jitter, n + 1 + warm) * T
+    if isinstance(scenario.master, CsvMaster):
+        allst = _csv_states(scenario.master, T, -warm - L, n)
+        at = [(s.pos[0], s.pos[1], s.pos[2], s.ang) for s in allst]
+
+        def sample(i: int) -> tuple[float, ...]:
+            return at[i]  # cycle i - warm samples at (i - warm - L) T
+        true = allst[warm + L:]
+    else:
+        profile = build_profile(scenario.master)
+
+        def sample(i: int) -> tuple[float, ...]:
+            s = profile.state((i - warm - L) * T + delta[i])
+            return s.pos[0], s.pos[1], s.pos[2], s.ang
+        true = [profile.state(k * T) for k in range(n + 1)]
+    qs = [p.encoder.resolution_mm for p in ps]
+    fed = []
+    for i in range(warm + n + 1):
+        x = sample(i)
+        outs = [c.update(_quantise(v, q), float(delta[i]) if not isinstance(
+            scenario.master, CsvMaster) else 0.0) for c, v, q in zip(conds, x, qs)]
+        if i >= warm:
+            ox, oy, oz, oc = outs
+            fed.append(MotionState((ox.pos, oy.pos, oz.pos), (ox.vel, oy.vel, oz.vel),
+                                   (ox.acc, oy.acc, oz.acc), oc.pos, oc.vel, oc.acc,
+                                   (ox.jerk, oy.jerk, oz.jerk), oc.jerk))
+    return true, fed
+
+
 def _quantise(x: float, step: float) -> float:
     return math.floor(x / step + 0.5) * step if step > 0.0 else x
 
@@ -214,6 +269,8 @@ def master_states(scenario: "Scenario") -> tuple[list[MotionState], list[MotionS
 
     T = scenario.params.sample_time_s
     n = scenario.n_samples
+    if scenario.conditioning is not None:
+        return _conditioned_states(scenario)
     enc = scenario.estimator
     kmin = -(enc.delay_samples + enc.window) if enc is not None else 0
     if isinstance(scenario.master, CsvMaster):

@@ -105,7 +105,7 @@ class SimulationResult:
 
     @property
     def has_estimator(self) -> bool:
-        return self.scenario.estimator is not None
+        return self.scenario.estimator is not None or self.scenario.conditioning is not None
 
     @property
     def final_state(self) -> TrackState:

@@ -76,6 +76,22 @@ Keys (``*`` = required)::
       window: 16                     # MasterEstimator window (>= 3)
       lead_samples: 1                # prediction lead; default: delay_samples
       degree: 2                      # 1 (linear) or 2 (quadratic fit)
+    conditioning:                    # optional, instead of estimator: an encoder through the
+                                     #   master conditioner (controller.tracking.conditioning,
+                                     #   one per axis, the frame's limits from
+                                     #   tracker.master_max_trans / master_max_rot)
+      resolution_mm: 0.01            # one count [mm] (0: none)
+      resolution_deg: 0              # one count of the angle [deg]
+      latency_samples: 1             # the sample of time k arrives for sample k + latency
+                                     #   (the conditioner predicts it back to k)
+      jitter: 0.1                    # sampling instants off by up to this share of T (known
+                                     #   to the conditioner, as the CAN shell knows its SYNC
+                                     #   lateness); segment masters only
+      design: kinematic              # kinematic (default) or otg
+      jerk_reserve: 3                # output jerk up to (1 + this) x JerkMax
+      outlier_mm: 0.25               # outlier gate [mm] (default max(0.25, 5 counts))
+      max_outliers: 10               # consecutive outliers = master lost
+      seed: 0                        # of the jitter
 
 Timing: the tracker counts samples k (time k*T).  Row 0 is the robot state before the first
 update.  A command at time t acts at sample k = round(t/T): the tracker is told before the
@@ -108,13 +124,14 @@ from typing import Any
 
 from ..errors import ConfigError
 from ..tracking import MotionState, TrackerParams
+from ..tracking.conditioning import ConditionerDesign
 from ..yamlmarks import MarkedList, MarkedMap, closest, load_marked, read_text
 from .master import SegmentError, build_profile
 from .reading import (MAX_POSITION_MM, MAX_SAMPLES, MISSING, CsvMaster, Ctx, EncoderSpec,
                       Node, SampledRun, Segment, SegmentMaster, check_number, describe,
                       segment_master, tracker_params, unit_vector)
 
-__all__ = ["CsvMaster", "EncoderSpec", "Scenario", "Segment", "SegmentMaster", "load_scenario",
+__all__ = ["ConditioningSpec", "CsvMaster", "EncoderSpec", "Scenario", "Segment", "SegmentMaster", "load_scenario",
            "MAX_SAMPLES", "MAX_POSITION_MM"]
 
 # this module's short spellings of the shared readers (controller.simulate.reading)
@@ -131,6 +148,21 @@ _Sequence = MarkedList
 _load_yaml = load_marked
 
 @dataclass(frozen=True)
+class ConditioningSpec:
+    """An encoder through the master conditioner (``conditioning:`` section)."""
+
+    resolution_mm: float = 0.0
+    resolution_deg: float = 0.0
+    latency_samples: int = 1
+    jitter: float = 0.0
+    design: ConditionerDesign = ConditionerDesign.KINEMATIC
+    jerk_reserve: float = 3.0
+    outlier_mm: float | None = None
+    max_outliers: int = 10
+    seed: int = 0
+
+
+@dataclass(frozen=True)
 class Scenario(SampledRun):
     """A validated scenario.  ``engage``/``disengage`` are times [s]; ``*_samples`` the
     sample indices k at which the commands are given (they act on sample k + 1)."""
@@ -144,6 +176,7 @@ class Scenario(SampledRun):
     estimator: EncoderSpec | None = None
     name: str = ""
     source: Path | None = None
+    conditioning: ConditioningSpec | None = None
 
     @property
     def engage_samples(self) -> tuple[int, ...]:
@@ -156,7 +189,7 @@ class Scenario(SampledRun):
 
 # -- parsing -----------------------------------------------------------------------------
 _TOP_KEYS = ("name", "duration_s", "engage", "disengage", "tracker", "robot", "master",
-             "estimator")
+             "estimator", "conditioning")
 def _robot(node: _Node) -> MotionState:
     node.check_keys(("position", "c", "velocity", "acceleration", "c_rate", "c_acceleration"))
     zero = (0.0, 0.0, 0.0)
@@ -274,6 +307,30 @@ def _estimator(node: _Node) -> EncoderSpec:
         degree=node.number("degree", 2, lo=1, hi=2, integer=True))
 
 
+def _conditioning(node: _Node) -> ConditioningSpec:
+    node.check_keys(("resolution_mm", "resolution_deg", "latency_samples", "jitter", "design",
+                     "jerk_reserve", "outlier_mm", "max_outliers", "seed"))
+    design = ConditionerDesign.KINEMATIC
+    if node.has("design"):
+        raw = node.raw("design")
+        names = {d.name.lower(): d for d in ConditionerDesign}
+        if raw not in names:
+            raise node.error("design", f"value {raw!r} must be one of {', '.join(names)}")
+        design = names[raw]
+    outlier = (node.number("outlier_mm", lo=0.0, lo_open=True, hi=1e6, unit="mm")
+               if node.has("outlier_mm") else None)
+    return ConditioningSpec(
+        resolution_mm=node.number("resolution_mm", 0.0, lo=0.0, hi=1e3, unit="mm"),
+        resolution_deg=node.number("resolution_deg", 0.0, lo=0.0, hi=360.0, unit="deg"),
+        latency_samples=node.number("latency_samples", 1, lo=0, hi=100, integer=True),
+        jitter=node.number("jitter", 0.0, lo=0.0, hi=0.5),
+        design=design,
+        jerk_reserve=node.number("jerk_reserve", 3.0, lo=0.0, hi=100.0),
+        outlier_mm=outlier,
+        max_outliers=node.number("max_outliers", 10, lo=1, hi=100000, integer=True),
+        seed=node.number("seed", 0, lo=0, hi=2 ** 31, integer=True))
+
+
 def _times(node: _Node, key: str, duration_s: float, required: bool) -> tuple[float, ...]:
     if not node.has(key):
         if required:
@@ -355,8 +412,19 @@ def _parse(data: Any, ctx: _Ctx, source: Path | None) -> Scenario:
             raise ctx.error(why, line, key)
         expected = "disengage" if kind == "engage" else "engage"
     estimator = _estimator(root.section("estimator")) if root.has("estimator") else None
+    conditioning = None
+    if root.has("conditioning"):
+        if estimator is not None:
+            raise root.error("conditioning", "give either an estimator or a conditioning "
+                                             "section, not both")
+        cnode = root.section("conditioning")
+        assert cnode is not None  # root.has() said so
+        conditioning = _conditioning(cnode)
+        if isinstance(master, CsvMaster) and conditioning.jitter:
+            raise root.error("conditioning", "jitter needs a segment master (a CSV master is "
+                                             "known at its sample times only)")
     return Scenario(params, robot, master, float(duration), engage, disengage, estimator, name,
-                    source)
+                    source, conditioning)
 
 
 def load_scenario(source: str | Path | dict, *, base_dir: str | Path | None = None) -> Scenario:

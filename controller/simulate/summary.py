@@ -88,6 +88,11 @@ def format_summary(result: SimulationResult) -> str:
         e = sc.estimator
         master += (f", through the estimator (quantisation {e.quantisation_mm:g} mm, delay "
                    f"{e.delay_samples}, window {e.window}, lead {e.lead_samples:g})")
+    if sc.conditioning is not None:
+        cs = sc.conditioning
+        master += (f", through the conditioner ({cs.design.name.lower()}, counts "
+                   f"{cs.resolution_mm:g} mm, latency {cs.latency_samples}, jitter "
+                   f"{100 * cs.jitter:g} %)")
     lines.append(f"Tracker    planner {p.planner}, mode {p.mode.name.lower()} ({int(p.mode)}), "
                  f"T = {T * 1000:g} ms, {sc.n_samples} samples = {sc.n_samples * T:.3f} s")
     lines.append(f"Master     {master}")

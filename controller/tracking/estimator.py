@@ -25,11 +25,14 @@ import numpy as np
 
 @dataclass(frozen=True, slots=True)
 class MasterEstimate:
-    """Estimated master state [mm, mm/s, mm/s^2] (or deg...) at the evaluation time."""
+    """Estimated master state [mm, mm/s, mm/s^2, mm/s^3] (or deg...) at the evaluation time.
+
+    ``jerk``: known only from a conditioned master (:mod:`.conditioning`); 0 from the fit."""
 
     pos: float
     vel: float
     acc: float
+    jerk: float = 0.0
 
 
 def _weights(n: int, lead: float, sample_time_s: float, degree: int) -> tuple[tuple[float, ...], ...]:

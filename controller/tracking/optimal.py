@@ -126,6 +126,10 @@ in a frame moving at the master's initial velocity (exact, constant bounds) towa
 master's state at the arrival time D, with D found by a fixed-point iteration (Ruckig's
 ``minimum_duration``); not done.
 
+A master with a jerk (a conditioned encoder, ``step(..., mj)``): plans keep a 2 % reserve of
+V and A and the master's jerk (plus 2 %) of J, and are sampled in the actual master's frame
+while the master stays within that reserve of the prediction (docs/spec/master-conditioning.md#6.3).
+
 FilterFactor and DampingFactor have their documented meaning for ``softmc`` only; this
 planner ignores them (its synchronisation is exact, relative state zero at the plan's end,
 and it needs no damping because it does not oscillate).
@@ -178,6 +182,12 @@ _RTOL = 1e-11
 SNAP_SAMPLES = 3
 SNAP_STUCK = 3
 SNAP_JERKS = 4.0
+#: share of V, A and J a plan keeps in reserve for a master with a jerk (a conditioned
+#: encoder) that deviates from the plan's constant-acceleration prediction; the plan is made
+#: again when the deviation outgrows it (docs/spec/master-conditioning.md#6.3)
+_RESERVE = 0.02
+#: the master's jerk now, times this, is reserved too (its jerk changes during the plan)
+_JERK_MARGIN = 1.5
 #: smallest weight of an axis (an idle axis can still correct small errors)
 _W_MIN = 1e-3
 #: relative margin of the weight floors
@@ -208,6 +218,7 @@ class _Plan:
         "basis",
         "basis_mm",
         "duration",
+        "reserve",
         "inputs",
         "k",
         "kind",
@@ -239,6 +250,9 @@ class _Plan:
         #: search again at this plan time [s] (an axis done early), inf: never
         self.research_at = math.inf
         self.research_times: tuple = ()
+        #: (velocity, acceleration, jerk) the master may deviate from the prediction by
+        #: (a plan made with the reserve), or None: the master must move as predicted
+        self.reserve: tuple | None = None
 
     def __getstate__(self):
         return tuple(getattr(self, name) for name in self.__slots__)
@@ -352,6 +366,9 @@ class OptimalPlanner:
         self.n_searches = 0
         self.n_fallback = 0
         self._rk = self._inp = self._traj = None
+        #: the reserve of plans made now (None: an ideal master, the whole limits)
+        self._reserve: tuple | None = None
+        self._jm = 0.0  # |master jerk| of this sample
 
     # -- Ruckig objects (not picklable: rebuilt on restore) ---------------------------
     def _solver(self) -> None:
@@ -393,26 +410,60 @@ class OptimalPlanner:
         self._retry_at = 0
         self._stuck = 0  # re-plans in a row whose arrival slipped later
         self._arrival = math.inf
+        k = 1.0 - _SAFETY
+        lim = self.limits
+        self._V, self._A, self._J = lim.vel * k, lim.acc * k, lim.jerk * k
+        self._reserve = None
+        self._jm = 0.0
 
-    def step(self, mp: Vec, mv: Vec, ma: Vec) -> tuple[Vec, Vec, Vec, bool]:
-        """The setpoint of this sample from the master (mp, mv, ma) of this sample."""
+    def step(self, mp: Vec, mv: Vec, ma: Vec,
+             mj: Vec | None = None) -> tuple[Vec, Vec, Vec, bool]:
+        """The setpoint of this sample from the master (mp, mv, ma) of this sample.
+
+        ``mj``: the master's jerk when known (a conditioned master).  The robot's jerk is the
+        master's plus the plan's, so plans made now get J - |mj| (at most half of J given
+        away; docs/spec/master-conditioning.md#6.3).  An ideal master (mj zero or None)
+        plans with the whole J, exactly as before."""
         self._k += 1
+        if mj is None:
+            jm = 0.0
+        else:
+            jm = 0.0
+            for x in mj:
+                jm += x * x
+            jm = math.sqrt(jm)
+        self._jm = jm
         plan = self.plan
         if plan is not None and not self.replan_always:
             j = plan.k + 1
             t = j * self.T
             tol = _RTOL
-            for x, y, z, p0, v0, a0 in zip(mp, mv, ma, plan.mp0, plan.mv0, plan.ma0):
-                # the master as the plan predicted it (to rounding)?
-                if abs(z - a0) > tol * (1.0 + abs(a0)):
-                    break
-                v = v0 + a0 * t
-                if abs(y - v) > tol * (1.0 + abs(v)):
-                    break
-                v = p0 + (v0 + 0.5 * a0 * t) * t
-                if abs(x - v) > tol * (1.0 + abs(v)):
-                    break
+            if plan.reserve is not None:
+                # the plan is sampled in the actual master's frame (master + e): it stays
+                # within the limits while the master's velocity and acceleration stay within
+                # the reserve of the plan's prediction and its jerk within the jerk reserve
+                rv, ra, rj = plan.reserve
+                dv2 = da2 = 0.0
+                for y, z, v0, a0 in zip(mv, ma, plan.mv0, plan.ma0):
+                    dv2 += (y - v0 - a0 * t) ** 2
+                    da2 += (z - a0) ** 2
+                ok = dv2 <= rv * rv and da2 <= ra * ra and jm <= rj
             else:
+                ok = True
+                for x, y, z, p0, v0, a0 in zip(mp, mv, ma, plan.mp0, plan.mv0, plan.ma0):
+                    # the master as the plan predicted it (to rounding)?
+                    if abs(z - a0) > tol * (1.0 + abs(a0)):
+                        ok = False
+                        break
+                    v = v0 + a0 * t
+                    if abs(y - v) > tol * (1.0 + abs(v)):
+                        ok = False
+                        break
+                    v = p0 + (v0 + 0.5 * a0 * t) * t
+                    if abs(x - v) > tol * (1.0 + abs(v)):
+                        ok = False
+                        break
+            if ok:
                 if t >= plan.duration:
                     return self._finish(mp, mv, ma)
                 if t >= plan.replan_until and t <= plan.valid_until:
@@ -497,14 +548,45 @@ class OptimalPlanner:
         return out
 
     # -- planning ---------------------------------------------------------------------
+    def _set_reserve(self) -> None:
+        """Plans made now keep a reserve when the master has a jerk (eq. 6.3)."""
+        jm = self._jm
+        if jm > 0.0 and not self.replan_always:
+            k = 1.0 - _SAFETY
+            lim = self.limits
+            self._V = lim.vel * k * (1.0 - _RESERVE)
+            self._A = lim.acc * k * (1.0 - _RESERVE)
+            J = lim.jerk * k
+            self._J = J - min(jm * _JERK_MARGIN + _RESERVE * J, 0.5 * J)
+            self._reserve = (_RESERVE * lim.vel * k, _RESERVE * lim.acc * k, J - self._J)
+
     def _plan_from(self, mp: Vec, mv: Vec, ma: Vec) -> _Plan | None:
         """A tracking plan from the last setpoint, the master given at this sample."""
+        self._set_reserve()
         T = self.T
         rng = range(self.n)
         hT2 = 0.5 * T * T
         mbp = tuple([mp[i] - mv[i] * T + ma[i] * hT2 for i in rng])
         mbv = tuple([mv[i] - ma[i] * T for i in rng])
-        return self._plan_track(mbp, mbv, tuple(ma))
+        plan = self._plan_track(mbp, mbv, tuple(ma))
+        if plan is None and self._reserve is not None:
+            # the robot's state is outside the reserved box (it was moving at a limit
+            # before the master's jerk appeared): plan with the whole limits, re-made every
+            # sample as for any master that leaves its prediction
+            k = 1.0 - _SAFETY
+            lim = self.limits
+            self._V, self._A = lim.vel * k, lim.acc * k
+            self._J = lim.jerk * k - min(self._jm, 0.5 * lim.jerk * k)
+            self._reserve = None
+            self.w = None
+            plan = self._plan_track(mbp, mbv, tuple(ma))
+            if plan is None and self._jm > 0.0:
+                # not even that: the whole J too (the plan as for a master without jerk;
+                # the master's own jerk then adds to the robot's until the next plan)
+                self._J = lim.jerk * k
+                self.w = None
+                plan = self._plan_track(mbp, mbv, tuple(ma))
+        return plan
 
     def _replan(self, mp: Vec, mv: Vec, ma: Vec) -> tuple[Vec, Vec, Vec, bool]:
         """Plan from the last setpoint (same R and w if feasible); else the fallback."""
@@ -604,6 +686,7 @@ class OptimalPlanner:
         self.w = w
         self.basis = fr.basis
         plan = _Plan(_TRACK, inputs, fr.basis, mbp, mbv, ma, D)
+        plan.reserve = self._reserve
         plan.valid_until = valid
         if acc and not self.per_axis:
             plan.replan_until = self._loosening_until(fr)

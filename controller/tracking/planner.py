@@ -4,7 +4,7 @@ An approach planner moves one channel (3-D translation in mm, or the 1-D rotatio
 from the robot's state to the master's.  The tracker calls ``reset(p, v, a)`` at engage with
 the setpoint of the previous sample, then ``step(mp, mv, ma)`` once per sample with the
 master's state at that sample; ``step`` returns the new setpoint (p, v, a) and whether the
-channel is synchronised.  After that the tracker copies the master: planners never run in
+channel is synchronised; ``mj``, the master's jerk, is given when known (conditioned master).  After that the tracker copies the master: planners never run in
 SYNCED.  Planners are deterministic and deep-copyable (the FMU saves and restores them).
 """
 
@@ -23,7 +23,8 @@ class ChannelPlanner(Protocol):
 
     def reset(self, p: Vec, v: Vec, a: Vec) -> None: ...
 
-    def step(self, mp: Vec, mv: Vec, ma: Vec) -> tuple[Vec, Vec, Vec, bool]: ...
+    def step(self, mp: Vec, mv: Vec, ma: Vec,
+             mj: Vec | None = None) -> tuple[Vec, Vec, Vec, bool]: ...
 
 
 #: planner name -> "module:factory"; factory(limits, params) -> ChannelPlanner.  The modules

@@ -108,7 +108,8 @@ class SoftMcPlanner:
             self.dp0 = tuple([0.0] * len(p))
             self.ddp0 = tuple([0.0] * len(p))
 
-    def step(self, mp: Vec, mv: Vec, ma: Vec) -> tuple[Vec, Vec, Vec, bool]:
+    def step(self, mp: Vec, mv: Vec, ma: Vec,
+             mj: Vec | None = None) -> tuple[Vec, Vec, Vec, bool]:
         """Advance one sample towards the master state (mp, mv, ma) of this sample.
 
         Returns the new setpoint (p, v, a) and whether the approach is complete.

@@ -9,7 +9,9 @@ setpoint for sample k.  The shells predict the master to that time (see ``estima
 
 Channels: translation (3-D, vector-norm limits ``sync_trans``) and rotation (one angle about
 the tool axis, ``sync_rot``) are approached independently by the same planner; the tracker is
-SYNCED when both are.  A synchronised channel copies the master (all derivatives).
+SYNCED when both are.  A synchronised channel follows the master: ``SyncFollow.COPY`` copies
+it (all derivatives, as published), ``SyncFollow.LIMITED`` (default with ``optimal``) copies it
+while that keeps the sync limits and closes any gap within them (:mod:`.follow`).
 
 Modes (``<robot>.slave``): 3 absolute — the robot goes onto the master; 5 relative — the
 robot keeps the offset it had to the master at engage (the master shifted by
@@ -30,10 +32,11 @@ import math
 from typing import Callable
 
 from .desync import Desync
+from .follow import SyncFollower
 from .oscillation import OscillationMonitor
 from .planner import ChannelPlanner, planner_factory
-from .types import (Imfs, Mode, MotionState, TrackError, TrackerOutput, TrackerParams,
-                    TrackState)
+from .types import (Imfs, Mode, MotionState, SyncFollow, TrackError, TrackerOutput,
+                    TrackerParams, TrackState)
 from .vec import Vec, vec3
 
 #: Builds the de-sync stops (translation, rotation) for a tracker about to de-sync, or returns
@@ -69,8 +72,16 @@ class Tracker:
             OscillationMonitor(params.max_flops, window,
                                params.filter_factor * self.limits.sync_rot.acc * self.T))
         self._timeout_samples = max(1, round(params.approach_timeout_s / self.T))
+        #: SYNCED followers (translation, rotation); None: copy the master (as published)
+        self._follow: tuple[SyncFollower, SyncFollower] | None = (
+            (SyncFollower(self.limits.sync_trans, self.T),
+             SyncFollower(self.limits.sync_rot, self.T))
+            if params.synced_follow == SyncFollow.LIMITED else None)
         self.sample = 0
         self.setpoint = initial if initial is not None else MotionState()
+        #: the two setpoints before ``setpoint`` (finite differences of the SYNCED follower)
+        self._prev: tuple[MotionState | None, MotionState | None] = (None, None)
+        self._hist: tuple[MotionState | None, MotionState | None] = (None, None)
         self.state = TrackState.OFF
         self.error = TrackError.NONE
         self.mode = params.mode
@@ -139,7 +150,7 @@ class Tracker:
         o = self._offset_pos
         p = m.pos
         return MotionState((p[0] + o[0], p[1] + o[1], p[2] + o[2]), m.vel, m.acc,
-                           m.ang + self._offset_ang, m.ang_vel, m.ang_acc)
+                           m.ang + self._offset_ang, m.ang_vel, m.ang_acc, m.jerk, m.ang_jerk)
 
     def _start_sync(self, master: MotionState) -> None:
         self.mode = self._request_mode or self.params.mode
@@ -192,8 +203,20 @@ class Tracker:
         return TrackError.NONE
 
     # -- the cyclic call ------------------------------------------------------------
+    def _hist_t(self) -> tuple:
+        """Positions of setpoints k-2, k-3 (None until there are two)."""
+        a, b = self._hist
+        return (None, None) if a is None or b is None else (a.pos, b.pos)
+
+    def _hist_r(self) -> tuple:
+        a, b = self._hist
+        return (None, None) if a is None or b is None else ((a.ang,), (b.ang,))
+
     def update(self, master: MotionState) -> TrackerOutput:
         """Compute the setpoint of the next sample from the master's state at that sample."""
+        prev = self._prev  # setpoints k-2, k-3 (self.setpoint is k-1)
+        self._hist = prev
+        self._prev = (self.setpoint, prev[0])
         request, self._request = self._request, None
         if request == "engage" and self.state in (TrackState.OFF, TrackState.DESYNCING):
             self._start_sync(master)
@@ -219,20 +242,35 @@ class Tracker:
         if state == TrackState.SYNCING:
             m = self._shifted(master)
             pl_t, pl_r = self._planners
+            fo = self._follow
+            sp = self.setpoint
             if self._synced[0]:
-                pos, vel, acc = m.pos, m.vel, m.acc
+                pos, vel, acc = (m.pos, m.vel, m.acc) if fo is None else fo[0].step(
+                    sp.pos, sp.vel, sp.acc, m.pos, m.vel, m.acc, m.jerk, *self._hist_t())
             else:
-                pos, vel, acc, ok = pl_t.step(m.pos, m.vel, m.acc)
+                pos, vel, acc, ok = pl_t.step(m.pos, m.vel, m.acc, m.jerk)
                 self._synced[0] = ok
+                if ok and fo is not None:  # the switch: close what is left within the limits
+                    pos, vel, acc = fo[0].step(sp.pos, sp.vel, sp.acc, m.pos, m.vel, m.acc,
+                                               m.jerk, *self._hist_t())
                 if not ok and self._osc[0].update(
                         k, tuple([a - b for a, b in zip(m.vel, vel)])):
                     self.error = TrackError.OVER_OSCILLATION
             if self._synced[1]:
-                ang, ang_vel, ang_acc = m.ang, m.ang_vel, m.ang_acc
+                if fo is None:
+                    ang, ang_vel, ang_acc = m.ang, m.ang_vel, m.ang_acc
+                else:
+                    (ang,), (ang_vel,), (ang_acc,) = fo[1].step(
+                        (sp.ang,), (sp.ang_vel,), (sp.ang_acc,), (m.ang,), (m.ang_vel,),
+                        (m.ang_acc,), (m.ang_jerk,), *self._hist_r())
             else:
                 (ang,), (ang_vel,), (ang_acc,), ok = pl_r.step(
-                    (m.ang,), (m.ang_vel,), (m.ang_acc,))
+                    (m.ang,), (m.ang_vel,), (m.ang_acc,), (m.ang_jerk,))
                 self._synced[1] = ok
+                if ok and fo is not None:
+                    (ang,), (ang_vel,), (ang_acc,) = fo[1].step(
+                        (sp.ang,), (sp.ang_vel,), (sp.ang_acc,), (m.ang,), (m.ang_vel,),
+                        (m.ang_acc,), (m.ang_jerk,), *self._hist_r())
                 if not ok and self._osc[1].update(k, (m.ang_vel - ang_vel,)):
                     self.error = TrackError.OVER_OSCILLATION
             self.setpoint = MotionState(vec3(pos), vec3(vel), vec3(acc), ang, ang_vel, ang_acc)
@@ -245,7 +283,19 @@ class Tracker:
             if self.error and self.state == TrackState.SYNCING:
                 self._start_desync(k)
         elif state == TrackState.SYNCED:
-            self.setpoint = self._shifted(master)
+            m = self._shifted(master)
+            fo = self._follow
+            if fo is None:
+                self.setpoint = m
+            else:
+                sp = self.setpoint
+                pos, vel, acc = fo[0].step(sp.pos, sp.vel, sp.acc, m.pos, m.vel, m.acc, m.jerk,
+                                           *self._hist_t())
+                (ang,), (ang_vel,), (ang_acc,) = fo[1].step(
+                    (sp.ang,), (sp.ang_vel,), (sp.ang_acc,), (m.ang,), (m.ang_vel,),
+                    (m.ang_acc,), (m.ang_jerk,), *self._hist_r())
+                self.setpoint = MotionState(vec3(pos), vec3(vel), vec3(acc), ang, ang_vel,
+                                            ang_acc)
         elif state == TrackState.DESYNCING:
             t = (k - self._desync_start) * self.T
             assert self._desync is not None  # set with the DESYNCING state

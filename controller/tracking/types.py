@@ -36,6 +36,13 @@ class Mode(IntEnum):
     RELATIVE = 5
 
 
+class SyncFollow(IntEnum):
+    """How SYNCED follows the master (docs/spec/master-conditioning.md#6)."""
+
+    COPY = 0  #: the published "copy all derivatives": the setpoint is the master
+    LIMITED = 1  #: copy while that keeps the sync limits, else close the gap within them
+
+
 class Imfs(IntEnum):
     """IsMovingFrameSynchronized (docs/spec/tracking.md#2.4)."""
 
@@ -213,6 +220,9 @@ class TrackerParams:
     #: default) or from zero acceleration (its conveyor overview; an acceleration step if the
     #: master was accelerating): docs/spec/tracking.md#5.3
     desync_from_current_acceleration: bool = True
+    #: SYNCED following (and the switch into it): ``None`` -- LIMITED for the ``optimal``
+    #: planner (the vector-norm limits hold in every phase), COPY for ``softmc`` (as published)
+    synced_follow: SyncFollow | None = None
 
     def __post_init__(self) -> None:
         # docs/spec/tracking.md#2.5: the sync/de-sync values start at the robot's maxima
@@ -225,6 +235,14 @@ class TrackerParams:
         if not (math.isfinite(self.sample_time_s) and 1e-5 <= self.sample_time_s <= 0.1):
             raise ParameterError(
                 f"sample_time_s (={self.sample_time_s!r}) must be in [1e-05...0.1] s")
+        follow = self.synced_follow
+        if follow is None:
+            follow = SyncFollow.COPY if self.planner == "softmc" else SyncFollow.LIMITED
+        try:
+            object.__setattr__(self, "synced_follow", SyncFollow(follow))
+        except ValueError:
+            raise ParameterError(f"synced_follow (={self.synced_follow!r}) must be 0 (copy) or "
+                                 f"1 (limited)") from None
         try:
             object.__setattr__(self, "mode", Mode(self.mode))
         except ValueError:
@@ -286,6 +304,9 @@ class MotionState:
 
     Used for both the master (moving frame) and the robot setpoint.
     ``pos`` mm, ``vel`` mm/s, ``acc`` mm/s^2; ``ang`` deg, ``ang_vel`` deg/s, ``ang_acc`` deg/s^2.
+    ``jerk`` mm/s^3 and ``ang_jerk`` deg/s^3: the master's jerk when known (a conditioned
+    master, :mod:`.conditioning`), else 0; the tracker plans against it
+    (docs/spec/master-conditioning.md#6).
     """
 
     pos: Vec3 = ZERO3
@@ -294,6 +315,8 @@ class MotionState:
     ang: float = 0.0
     ang_vel: float = 0.0
     ang_acc: float = 0.0
+    jerk: Vec3 = ZERO3
+    ang_jerk: float = 0.0
 
     @classmethod
     def at(cls, x: float = 0.0, y: float = 0.0, z: float = 0.0, c: float = 0.0) -> "MotionState":

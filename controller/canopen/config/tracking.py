@@ -15,6 +15,15 @@ scales).  Keys (``*`` = required)::
         origin: [0, 0, 0]            # machine position [mm] of belt coordinate 0
         direction: [1, 0, 0]         # belt direction in machine coordinates (normalised)
         estimator: {window: 16, degree: 2}   # controller.tracking.MasterEstimator
+        conditioning:                # instead of estimator: the master conditioner
+                                     #   (controller.tracking.conditioning; counts of
+                                     #   1/counts_per_mm, VelocityMax/AccelerationMax from
+                                     #   tracker.master_max_trans)
+          jerk_max: 5000             # the belt's JerkMax [mm/s^3]
+          design: kinematic          # kinematic | otg
+          jerk_reserve: 3            # output jerk up to (1 + this) x jerk_max
+          outlier_mm: 0.25           # outlier gate (default max(0.25 mm, 5 counts))
+          max_outliers: 10           # consecutive outliers: master lost (de-sync)
         silent_cycles: 5             # no sample for this many cycles -> de-sync on the
                                      #   extrapolated master (>= 1)
       kinematics:*
@@ -87,6 +96,7 @@ from typing import TYPE_CHECKING, Any
 from ...errors import ConfigError, ParameterError
 from ...kinematics import KINEMATICS, AxisScale
 from ...tracking import PLANNERS, Limits, Mode, Rates, SoftMcOptions, TrackerParams
+from ...tracking.conditioning import ConditionerDesign
 from ...yamlmarks import Section
 from ..protocol import od as odm
 from .reactions import Reactions, parse_reactions
@@ -110,6 +120,19 @@ class ConveyorConfig:
     window: int
     degree: int
     silent_cycles: int
+    #: the master conditioner instead of the estimator (None: the estimator)
+    conditioning: "ConveyorConditioning | None" = None
+
+
+@dataclass(frozen=True, slots=True)
+class ConveyorConditioning:
+    """``conveyor.conditioning``: mm/s^3, mm (docs/spec/master-conditioning.md)."""
+
+    jerk_max: float = 5000.0
+    design: ConditionerDesign = ConditionerDesign.KINEMATIC
+    jerk_reserve: float = 3.0
+    outlier_mm: float | None = None
+    max_outliers: int = 10
 
 
 @dataclass(frozen=True, slots=True)
@@ -274,6 +297,21 @@ def _conveyor(s: Section, cfg: BusConfig) -> ConveyorConfig:
     window = est.int("window", 16, min=3, max=256)
     degree = est.int("degree", 2, allowed=(1, 2))
     est.finish()
+    conditioning = None
+    if s.has("conditioning"):
+        if s.has("estimator"):
+            raise s.error("conditioning", "give either estimator or conditioning, not both")
+        cs = s.section("conditioning", {})
+        designs = {d.name.lower(): d for d in ConditionerDesign}
+        design = cs.str("design", "kinematic", choices=tuple(designs))
+        outlier = cs.float("outlier_mm", None, above=0.0) if cs.has("outlier_mm") else None
+        conditioning = ConveyorConditioning(
+            jerk_max=cs.float("jerk_max", 5000.0, above=0.0),
+            design=designs[design],
+            jerk_reserve=cs.float("jerk_reserve", 3.0, min=0.0, max=100.0),
+            outlier_mm=outlier,
+            max_outliers=cs.int("max_outliers", 10, min=1, max=100_000))
+        cs.finish()
     conv = ConveyorConfig(
         node=node, index=index, sub_index=sub,
         counts_per_mm=s.float("counts_per_mm", above=0.0),
@@ -281,7 +319,8 @@ def _conveyor(s: Section, cfg: BusConfig) -> ConveyorConfig:
         origin=s.vector("origin", 3, (0.0, 0.0, 0.0)),
         direction=(direction[0] / n, direction[1] / n, direction[2] / n),
         window=window, degree=degree,
-        silent_cycles=s.int("silent_cycles", 5, min=1, max=10_000))
+        silent_cycles=s.int("silent_cycles", 5, min=1, max=10_000),
+        conditioning=conditioning)
     s.finish()
     return conv
 

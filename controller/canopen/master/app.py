@@ -29,13 +29,14 @@ if TYPE_CHECKING:
 def belt_frame(conv: ConveyorConfig, est: MasterEstimate,
                offset: Sequence[float] = (0.0, 0.0, 0.0), angle: float = 0.0) -> MotionState:
     """The state of the belt point at travel ``est.pos`` [mm] from the conveyor's origin:
-    origin + direction * s + offset [mm], velocity direction * v, acceleration direction * a."""
+    origin + direction * s + offset [mm], velocity direction * v, acceleration direction * a,
+    jerk direction * j (the conditioned master's; 0 from the estimator)."""
     d, o = conv.direction, conv.origin
-    s, v, a = est.pos, est.vel, est.acc
+    s, v, a, j = est.pos, est.vel, est.acc, est.jerk
     return MotionState((o[0] + d[0] * s + offset[0], o[1] + d[1] * s + offset[1],
                         o[2] + d[2] * s + offset[2]),
                        (d[0] * v, d[1] * v, d[2] * v), (d[0] * a, d[1] * a, d[2] * a),
-                       angle, 0.0, 0.0)
+                       angle, 0.0, 0.0, (d[0] * j, d[1] * j, d[2] * j))
 
 
 @dataclass(frozen=True, slots=True)

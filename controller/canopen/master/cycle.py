@@ -43,7 +43,7 @@ from typing import TYPE_CHECKING
 from ...errors import CanError
 from ...kinematics import CountsConverter
 from ...kinematics import create as create_kinematics
-from ...tracking import MasterEstimate, MotionState, Tracker, TrackState
+from ...tracking import MasterEstimate, MotionState, Tracker, TrackError, TrackState
 from ..config.busload import BusLoad, bus_load, check_bus_load
 from ..config.reactions import Disturbance, Reaction
 from ..io.transport import GuardedTransport, Transport
@@ -323,6 +323,12 @@ class Controller:
         event, est = self.master.update(k, (t_sent - deadline) * 1e-9)
         if event == "silent":
             self._master_silent(k, t_s)
+        elif event == "outlier":
+            self.events.add(k, t_s, self.master.label, "master_outlier",
+                            f"encoder sample {self.master.outlier_mm:+.3f} mm off what the "
+                            f"belt can do", "rejected, the estimate coasts", level=20)
+        elif event == "lost":
+            self._master_outliers_lost(k, t_s)
         elif event == "back":
             self.events.add(k, t_s, self.master.label, "master_back",
                             "encoder samples arrive again", "estimator restarted", level=20)
@@ -583,6 +589,21 @@ class Controller:
         if self.failure is None:
             self.failure = EnableError(f"{source}: {detail}")
 
+    def _master_outliers_lost(self, k: int, t_s: float) -> None:
+        tr = self.tracker
+        cc = self.master.conf.conditioning
+        n = cc.max_outliers if cc is not None else 0
+        engaged = tr is not None and tr.state in (TrackState.SYNCING, TrackState.SYNCED)
+        self.events.add(k, t_s, self.master.label, "master_lost",
+                        f"{n} encoder samples in a row off what the belt can do (last "
+                        f"{self.master.outlier_mm:+.3f} mm)",
+                        "de-sync on the extrapolated master (MASTER_LOST)" if engaged else
+                        "conditioner restarted")
+        if tr is not None and engaged:
+            tr.disengage(TrackError.MASTER_LOST)
+        if self.phase is Phase.RUNNING:
+            self.app.master_lost(self, k)
+
     def _master_silent(self, k: int, t_s: float) -> None:
         tr = self.tracker
         engaged = tr is not None and tr.state in (TrackState.SYNCING, TrackState.SYNCED)
@@ -673,7 +694,7 @@ class Controller:
         return CycleRecord(
             cycle=k, t_s=t_s, phase=self.phase.value, raw=master.raw,
             belt_mm=master.belt_mm if master.raw is not None else None,
-            belt_vel=est.vel if est is not None and master.estimator.samples >= 3 else None,
+            belt_vel=est.vel if est is not None and master.velocity_known else None,
             state=self._track_state(tr),
             imfs=self._imfs(tr),
             error=int(out.error) if out is not None else 0,

@@ -28,6 +28,8 @@ class EventKind(StrEnum):
     NMT_STATE = "nmt_state"              #: a node's heartbeat shows a state other than OPERATIONAL
     MASTER_SILENT = "master_silent"      #: the encoder went silent: de-sync
     MASTER_BACK = "master_back"          #: the encoder sends again
+    MASTER_OUTLIER = "master_outlier"    #: an encoder sample the belt cannot have made
+    MASTER_LOST = "master_lost"          #: max_outliers such samples in a row: de-sync
     ITEM_MISSED = "item_missed"          #: the demo: an item left its window unpicked
     # the controlled stop (master.stopping)
     STOP_CONFIRMED = "stop_confirmed"    #: a drive's statusword confirms its stop

@@ -12,6 +12,14 @@ the receive callback).  In a cycle without a fresh sample the estimator gets its
 prediction as a virtual sample (so its samples stay one period apart) and ``silent`` counts
 up; after ``silent_cycles`` the cycle de-syncs on that extrapolated master
 (:mod:`controller.canopen.master.cycle`).  When samples come back the estimator restarts from them.
+
+With ``conveyor.conditioning`` the belt goes through a :class:`MasterConditioner` instead
+(docs/spec/master-conditioning.md): counts of 1/counts_per_mm, the sample taken at this
+cycle's SYNC (latency 0, its lateness ``sync_late_s`` the known jitter), predicted
+``lead`` cycles ahead, within the frame's VelocityMax/AccelerationMax (the tracker's
+``master_max_trans``) and ``jerk_max``; a missing sample coasts; an outlier is reported
+("outlier") and coasted over; ``max_outliers`` in a row are "lost" (the controller de-syncs
+with MASTER_LOST), and the conditioner starts again from the next sample.
 """
 
 from __future__ import annotations
@@ -19,7 +27,9 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 from ...kinematics import EncoderScale
-from ...tracking import MasterEstimate, MasterEstimator
+from ...tracking import Limits, MasterEstimate, MasterEstimator
+from ...tracking.conditioning import (ConditionedMaster, ConditioningParams, EncoderModel,
+                                      EventKind, MasterConditioner)
 from ..config.concise import effective_pdos
 from ..io.transport import Transport
 from ..protocol.frames import FrameHygiene
@@ -41,8 +51,23 @@ class MasterInput:
         self._pos = self.codec.position(c.index, c.sub_index)
         self.scale = EncoderScale(c.counts_per_mm, c.modulus, c.sign)
         self.lead = 1 + cfg.tracking.drive_delay_cycles
-        self.estimator = MasterEstimator(cfg.period_s, c.window, lead_samples=float(self.lead),
-                                         degree=c.degree)
+        self.estimator: MasterEstimator | None = None
+        self.conditioner: MasterConditioner | None = None
+        if c.conditioning is None:
+            self.estimator = MasterEstimator(cfg.period_s, c.window,
+                                             lead_samples=float(self.lead), degree=c.degree)
+        else:
+            cc = c.conditioning
+            tc = cfg.tracking
+            assert tc is not None  # a controller runs only with a .tracking section
+            mt = tc.tracker.master_max_trans
+            self.conditioner = MasterConditioner(ConditioningParams(
+                cfg.period_s, EncoderModel(1.0 / c.counts_per_mm, 0),
+                Limits(mt.vel, mt.acc, cc.jerk_max), lead_samples=float(self.lead),
+                design=cc.design, jerk_reserve=cc.jerk_reserve, outlier_mm=cc.outlier_mm,
+                max_outliers=cc.max_outliers))
+        #: the conditioner's output of the last update (None with the estimator)
+        self.conditioned: ConditionedMaster | None = None
         self.snapshot: tuple[int, int, int] | None = None  # (raw, t_ns, cycle)
         self.cycle = -1
         self.silent = 0
@@ -53,6 +78,8 @@ class MasterInput:
         self.hygiene = hygiene if hygiene is not None else FrameHygiene()
         self._size = self.codec.struct.size
         self._what = f"TPDO{pdo.number} of {self.label}"
+        #: size [mm] of the last outlier (conditioner)
+        self.outlier_mm = 0.0
         transport.subscribe(pdo.cob_id, self._on_tpdo)
 
     def _on_tpdo(self, can_id: int, data: bytes, t_ns: int) -> None:
@@ -68,14 +95,31 @@ class MasterInput:
 
     @property
     def ready(self) -> bool:
-        """Enough samples for a full estimator window and not lost."""
-        return not self.lost and self.estimator.samples >= self.estimator.window
+        """Enough samples for a full estimator window (the conditioner: warmed up) and not
+        lost."""
+        if self.conditioner is not None:
+            return not self.lost and self.conditioned is not None and self.conditioned.valid
+        est = self.estimator
+        assert est is not None  # one of the two
+        return not self.lost and est.samples >= est.window
+
+    @property
+    def velocity_known(self) -> bool:
+        """The estimate's velocity means something (for the trace)."""
+        if self.conditioner is not None:
+            return self.conditioned is not None and self.conditioned.valid
+        return self.estimator is not None and self.estimator.samples >= 3
 
     def skip(self, periods: int) -> None:
         """The time base slipped by ``periods`` (an overrun, no SYNC was sent): the estimator
         gets its own prediction for each of them, so that its samples stay one period
         apart (else the next real sample looks like a velocity jump)."""
+        if self.conditioner is not None:
+            for _ in range(periods):
+                self.conditioner.update(None)  # coasts
+            return
         est = self.estimator
+        assert est is not None  # one of the two
         for _ in range(periods if est.samples else 0):
             est.push(est.estimate(1.0 - est.lead).pos)
 
@@ -88,10 +132,14 @@ class MasterInput:
         estimated velocity (s - v * late): SYNC jitter would otherwise enter the estimate
         as position noise (0.3 mm for 1 ms late at 300 mm/s, and in a 1 ms quadratic fit
         an acceleration spike above the frame's AccelerationMax).
-        event: None, "silent" (first cycle over the limit) or "back".
+        event: None, "silent" (first cycle over the limit) or "back"; with the conditioner
+        also "outlier" (``outlier_mm`` holds its size) and "lost".
         """
+        if self.conditioner is not None:
+            return self._update_conditioned(cycle, sync_late_s)
         event = None
         est = self.estimator
+        assert est is not None  # one of the two
         if self.fresh(cycle):
             raw = self.snapshot[0]
             if self.lost:
@@ -114,4 +162,43 @@ class MasterInput:
                 self.lost = True
                 event = "silent"
         self.last_estimate = est.estimate() if est.samples else None
+        return event, self.last_estimate
+
+    def _update_conditioned(self, cycle: int, sync_late_s: float
+                            ) -> tuple[str | None, MasterEstimate | None]:
+        event = None
+        x = None
+        snap = self.snapshot
+        if snap is not None and snap[2] == cycle:  # fresh
+            raw = snap[0]
+            if self.lost and self.silent:
+                event = "back"
+            if self.silent:
+                self.lost = False
+            self.raw = raw
+            self.belt_mm = x = self.scale.belt_mm(raw)
+            self.silent = 0
+        else:
+            self.raw = None
+            self.silent += 1
+            if self.silent >= self.conf.silent_cycles and not self.lost:
+                self.lost = True
+                event = "silent"
+        assert self.conditioner is not None  # the caller checked
+        o = self.conditioner.update(x, sync_late_s)
+        self.conditioned = o
+        ev = o.event
+        if ev is not None and event is None:
+            if ev.kind == EventKind.OUTLIER:
+                event = "outlier"
+                self.outlier_mm = ev.size_mm
+            elif ev.kind == EventKind.LOST:
+                event = "lost"
+                self.outlier_mm = ev.size_mm
+                self.lost = True
+            elif ev.kind == EventKind.READY and self.lost:
+                self.lost = False
+                event = "back"
+        self.last_estimate = (MasterEstimate(o.pos, o.vel, o.acc, o.jerk)
+                              if o.valid or o.status == o.status.LOST else None)
         return event, self.last_estimate

@@ -1,0 +1,596 @@
+"""Master conditioning: raw conveyor-encoder samples in, a physically possible belt motion out.
+
+The controller sees the belt only through an encoder: positions in steps of one count
+(``resolution_mm``), taken ``latency_samples`` whole cycles before the cycle that uses them,
+at an instant that may be off the nominal cycle time by a known ``time_offset_s`` (the
+shell's measured SYNC lateness: the arrival jitter), sometimes missing, sometimes wrong (a
+glitch).  :class:`MasterConditioner` turns them into the belt's position, velocity,
+acceleration and jerk at the *setpoint's* time (``lead_samples`` cycles after the current
+one), as a trajectory that stays within the moving frame's VelocityMax, AccelerationMax and
+JerkMax.  Pure and deterministic: samples in, estimate out, no clock.
+
+Two stages (docs/spec/master-conditioning.md#2 to #4):
+
+1. **Estimator** -- a Kalman filter on the constant-jerk model x = (p, v, a, j) [mm, mm/s,
+   mm/s^2, mm/s^3] driven by white snap of intensity q, measuring p with variance
+   R = resolution^2/12 + noise_mm^2 (eq. 2.1-2.4).  q = omega^8 R T sets the bandwidth
+   omega = 2 pi ``bandwidth_hz`` (eq. 2.5).  The first ``warmup_samples`` run the full
+   (time-varying) filter from a wide prior; after that the steady-state gain for the nominal
+   period is used (computed once from the Riccati recursion), with the prediction over the
+   actual time between sample instants (jitter, missing samples).
+   *Outliers*: a sample whose innovation exceeds the gate (eq. 3.1)
+   ``outlier_mm + JerkMax*dt^3/6`` (dt: time since the last accepted sample) is not
+   something the belt can have done: it is rejected, counted, reported as an
+   :class:`ConditioningEvent` with its size, and the estimate coasts.  ``max_outliers``
+   consecutive outliers: the master is lost (``MasterStatus.LOST``; the shells then start the
+   existing MASTER_LOST reaction); the next sample starts the filter again.
+2. **Output generator** -- the estimate is predicted to the setpoint time (lag compensation,
+   eq. 2.6) and followed by an output trajectory that is integrated sample by sample with a
+   constant jerk per sample, so that the output *is* a belt motion: its finite differences
+   never exceed the frame's limits.
+
+   - ``ConditionerDesign.KINEMATIC`` (default): a third-order tracking law, jerk
+     u = j_e + 3w(a_e - a) + 3w^2(v_e - v) + w^3(p_e - p) (triple pole at -w,
+     w = 2 pi ``output_hz``) with feed-forward of the estimated jerk, projected onto the
+     kinematic constraints |u| <= JerkMax, |a + uT| <= AccelerationMax and the braking
+     distance of the velocity (eq. 4.1-4.3).  A few multiply-adds per sample.
+   - ``ConditionerDesign.OTG``: online trajectory generation with Ruckig: every sample a
+     time-optimal plan from the output state to the estimate predicted by the last plan's
+     duration, within the frame's limits; the output is its first sample (eq. 4.4).
+
+   The benchmark (benchmarks/tracking.py, encoder table) compares them; KINEMATIC is kept
+   (docs/spec/master-conditioning.md#5).
+
+Units: mm, mm/s, mm/s^2, mm/s^3 (or deg... for a rotary frame), s.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from enum import IntEnum
+from typing import Any, NamedTuple
+
+import numpy as np
+
+from ..errors import ParameterError
+from .types import Limits, MotionState, Vec3
+
+
+class ConditionerDesign(IntEnum):
+    """How the output trajectory is generated from the estimate."""
+
+    KINEMATIC = 0  #: Kalman estimate + third-order tracking law with kinematic projection
+    OTG = 1  #: Kalman estimate + Ruckig online trajectory generation
+
+
+class MasterStatus(IntEnum):
+    """State of the conditioned master."""
+
+    STARTING = 0  #: warming up (fewer than ``warmup_samples`` accepted samples): not usable
+    OK = 1  #: the newest sample was accepted
+    COASTING = 2  #: the newest sample was missing or an outlier: the estimate is predicted
+    LOST = 3  #: ``max_outliers`` consecutive outliers: the master is lost
+
+
+class EventKind(IntEnum):
+    OUTLIER = 1  #: a sample rejected as physically impossible (size: its innovation [mm])
+    LOST = 2  #: too many consecutive outliers (size: the last innovation [mm])
+    READY = 3  #: the estimator is warmed up (again) and the output valid
+
+
+@dataclass(frozen=True, slots=True)
+class ConditioningEvent:
+    """Something the shell should report: at ``sample`` (the conditioner's cycle count)."""
+
+    kind: EventKind
+    sample: int
+    size_mm: float = 0.0
+
+
+@dataclass(frozen=True, slots=True)
+class EncoderModel:
+    """What is known about the encoder: count size [mm] and latency [whole cycles].
+
+    ``resolution_mm``: one count in mm (0: an ideal, unquantised position);
+    ``latency_samples``: cycles between the encoder's sampling instant and the cycle that gets
+    the sample (1: the TPDO sampled at SYNC k arrives for cycle k's computation, which is for
+    the setpoint applied at SYNC k+1); ``noise_mm``: extra white position noise [mm, 1 sigma].
+    """
+
+    resolution_mm: float = 0.0
+    latency_samples: int = 1
+    noise_mm: float = 0.0
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.resolution_mm) and self.resolution_mm >= 0.0):
+            raise ParameterError(f"resolution_mm (={self.resolution_mm!r}) must be >= 0 mm")
+        if int(self.latency_samples) != self.latency_samples or not 0 <= self.latency_samples <= 100:
+            raise ParameterError(
+                f"latency_samples (={self.latency_samples!r}) must be an integer in [0...100]")
+        if not (math.isfinite(self.noise_mm) and self.noise_mm >= 0.0):
+            raise ParameterError(f"noise_mm (={self.noise_mm!r}) must be >= 0 mm")
+
+
+@dataclass(frozen=True, slots=True)
+class ConditioningParams:
+    """Configuration of one :class:`MasterConditioner` (one belt coordinate).
+
+    ``frame``: the moving frame's VelocityMax/AccelerationMax/JerkMax (mm/s, mm/s^2, mm/s^3):
+    the envelope of the output and of the outlier gate.  ``lead_samples``: the setpoint's time
+    after the current cycle in cycles (1 + the drives' delay).  ``bandwidth_hz``: the
+    estimator's bandwidth (eq. 2.5); ``output_hz``: the KINEMATIC tracking law's pole
+    (eq. 4.1).  ``outlier_mm``: the gate's base [mm] (None: max(0.25 mm, 5 counts)).
+    """
+
+    sample_time_s: float
+    encoder: EncoderModel = EncoderModel()
+    frame: Limits = Limits(1000.0, 1000.0, 5000.0)
+    lead_samples: float = 1.0
+    design: ConditionerDesign = ConditionerDesign.KINEMATIC
+    bandwidth_hz: float | None = None
+    output_hz: float | None = None
+    #: the belt's jerk may change by JerkMax within about this long [s]: sets the snap
+    #: intensity q = JerkMax^2 / jerk_change_s of the estimator's model (eq. 2.5)
+    jerk_change_s: float = 1.0
+    outlier_mm: float | None = None
+    max_outliers: int = 10
+    #: the output's jerk may exceed JerkMax by this share to catch up the estimator's lag
+    #: at a jerk step (eq. 4.2); velocity and acceleration stay within the frame's maxima
+    jerk_reserve: float = 3.0
+    warmup_samples: int | None = None
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.sample_time_s) and 1e-5 <= self.sample_time_s <= 0.1):
+            raise ParameterError(
+                f"sample_time_s (={self.sample_time_s!r}) must be in [1e-05...0.1] s")
+        try:
+            object.__setattr__(self, "design", ConditionerDesign(self.design))
+        except ValueError:
+            raise ParameterError(f"design (={self.design!r}) must be one of "
+                                 f"{', '.join(d.name.lower() for d in ConditionerDesign)}"
+                                 ) from None
+        if not (math.isfinite(self.lead_samples) and 0.0 <= self.lead_samples <= 100.0):
+            raise ParameterError(f"lead_samples (={self.lead_samples!r}) must be in [0...100]")
+        if not (math.isfinite(self.jerk_change_s) and self.jerk_change_s > 0.0):
+            raise ParameterError(f"jerk_change_s (={self.jerk_change_s!r}) must be > 0 s")
+        for name in ("bandwidth_hz", "output_hz"):
+            v = getattr(self, name)
+            if v is None:
+                continue
+            if not (math.isfinite(v) and 0.0 < v <= 0.1 / self.sample_time_s):
+                raise ParameterError(f"{name} (={v!r}) must be in (0...{0.1 / self.sample_time_s:g}]"
+                                     f" Hz (a tenth of the sample rate)")
+        if self.outlier_mm is not None and not (math.isfinite(self.outlier_mm)
+                                                and self.outlier_mm > 0.0):
+            raise ParameterError(f"outlier_mm (={self.outlier_mm!r}) must be > 0 mm")
+        if not (math.isfinite(self.jerk_reserve) and 0.0 <= self.jerk_reserve <= 100.0):
+            raise ParameterError(f"jerk_reserve (={self.jerk_reserve!r}) must be in [0...100]")
+        if int(self.max_outliers) != self.max_outliers or self.max_outliers < 1:
+            raise ParameterError(f"max_outliers (={self.max_outliers!r}) must be an integer >= 1")
+        if self.warmup_samples is not None and (int(self.warmup_samples) != self.warmup_samples
+                                                or self.warmup_samples < 3):
+            raise ParameterError(
+                f"warmup_samples (={self.warmup_samples!r}) must be an integer >= 3")
+
+    @property
+    def gate_mm(self) -> float:
+        """Base of the outlier gate [mm]."""
+        if self.outlier_mm is not None:
+            return self.outlier_mm
+        return max(0.25, 5.0 * self.encoder.resolution_mm)
+
+    @property
+    def measurement_var_mm2(self) -> float:
+        """R [mm^2]: quantisation (one count uniform) plus the extra noise (eq. 2.2)."""
+        enc = self.encoder
+        return max(enc.resolution_mm ** 2 / 12.0 + enc.noise_mm ** 2, 1e-12)
+
+    @property
+    def estimator_hz(self) -> float:
+        """The estimator's bandwidth [Hz]: given, or from q and R (eq. 2.5), at most a
+        tenth of the sample rate."""
+        if self.bandwidth_hz is not None:
+            return self.bandwidth_hz
+        q = self.frame.jerk ** 2 / self.jerk_change_s
+        w = (q / (self.measurement_var_mm2 * self.sample_time_s)) ** 0.125
+        return min(w / (2.0 * math.pi), 0.1 / self.sample_time_s)
+
+    @property
+    def generator_hz(self) -> float:
+        """The KINEMATIC law's pole [Hz]: given, or 1.5 x the estimator's (a tenth of the
+        sample rate at most)."""
+        if self.output_hz is not None:
+            return self.output_hz
+        return min(1.5 * self.estimator_hz, 0.1 / self.sample_time_s)
+
+    @property
+    def warmup(self) -> int:
+        """Accepted samples before the output is valid: 5 estimator time constants."""
+        if self.warmup_samples is not None:
+            return int(self.warmup_samples)
+        return max(10, math.ceil(5.0 / (2.0 * math.pi * self.estimator_hz * self.sample_time_s)))
+
+
+class ConditionedMaster(NamedTuple):
+    """The conditioned belt at the setpoint time: mm, mm/s, mm/s^2, mm/s^3 (or deg...).
+
+    A named tuple (immutable; made once per cycle, so cheap to make)."""
+
+    pos: float
+    vel: float
+    acc: float
+    jerk: float
+    status: MasterStatus
+    event: ConditioningEvent | None = None
+
+    @property
+    def valid(self) -> bool:
+        """Usable by a tracker (warmed up, not lost)."""
+        return self.status == MasterStatus.OK or self.status == MasterStatus.COASTING
+
+    def along(self, direction: Vec3, origin: Vec3 = (0.0, 0.0, 0.0)) -> MotionState:
+        """The 3-D master of a linear frame: origin + direction * s (``direction`` a unit
+        vector), with all four derivatives."""
+        d0, d1, d2 = direction
+        p, v, a, j = self.pos, self.vel, self.acc, self.jerk
+        return MotionState((origin[0] + d0 * p, origin[1] + d1 * p, origin[2] + d2 * p),
+                           (d0 * v, d1 * v, d2 * v), (d0 * a, d1 * a, d2 * a),
+                           jerk=(d0 * j, d1 * j, d2 * j))
+
+
+def _q_matrix(q: float, dt: float) -> np.ndarray:
+    """Process noise of the constant-jerk model over dt for white snap q (eq. 2.3)."""
+    Q = np.empty((4, 4))
+    for i in range(4):
+        for k in range(4):
+            e = 7 - i - k
+            Q[i, k] = q * dt ** e / (e * math.factorial(3 - i) * math.factorial(3 - k))
+    return Q
+
+
+def _f_matrix(dt: float) -> np.ndarray:
+    return np.array([[1.0, dt, dt * dt / 2.0, dt ** 3 / 6.0], [0.0, 1.0, dt, dt * dt / 2.0],
+                     [0.0, 0.0, 1.0, dt], [0.0, 0.0, 0.0, 1.0]])
+
+
+def steady_state(q: float, r: float, dt: float) -> tuple[tuple[float, float, float, float],
+                                                         np.ndarray]:
+    """Steady-state Kalman gain (p, v, a, j rows) of the constant-jerk model (eq. 2.4) and
+    the covariance after the update, by iterating the Riccati recursion to convergence."""
+    F = _f_matrix(dt)
+    Q = _q_matrix(q, dt)
+    P = np.diag([r, 1e6 * r / dt ** 2, 1e6 * r / dt ** 4, 1e6 * r / dt ** 6])
+    K = np.zeros(4)
+    for _ in range(20000):
+        Pp = F @ P @ F.T + Q
+        Kn = Pp[:, 0] / (Pp[0, 0] + r)
+        P = Pp - np.outer(Kn, Pp[0, :])
+        if np.allclose(Kn, K, rtol=1e-12, atol=0.0):
+            K = Kn
+            break
+        K = Kn
+    return (float(K[0]), float(K[1]), float(K[2]), float(K[3])), P
+
+
+def output_pole(P: np.ndarray, w_max: float, authority: float) -> float:
+    """The KINEMATIC law's pole [rad/s] (eq. 4.2): the fastest up to ``w_max`` whose jerk
+    driven by the estimate's own error, 3 sigma of g^T P g with g = (w^3, 3w^2, 3w, 1),
+    fits in the jerk ``authority`` [mm/s^3] left over the belt's own jerk."""
+    def noise(w: float) -> float:
+        g = np.array([w ** 3, 3.0 * w * w, 3.0 * w, 1.0])
+        return 3.0 * math.sqrt(max(float(g @ P @ g), 0.0))
+
+    if noise(w_max) <= authority:
+        return w_max
+    lo, hi = 0.0, w_max
+    for _ in range(50):
+        mid = 0.5 * (lo + hi)
+        if noise(mid) <= authority:
+            lo = mid
+        else:
+            hi = mid
+    return max(lo, 1e-3 * w_max)
+
+
+class MasterConditioner:
+    """Raw belt positions (one per cycle) -> conditioned belt motion at the setpoint time.
+
+    ``update(position_mm, time_offset_s)`` once per cycle: the sample the encoder took
+    ``latency_samples`` cycles ago (``None`` if none arrived this cycle), ``time_offset_s``
+    [s] how far its sampling instant was after the nominal time (known jitter).
+    """
+
+    def __init__(self, params: ConditioningParams) -> None:
+        self.params = params
+        T = self.T = params.sample_time_s
+        enc = params.encoder
+        self._r = r = params.measurement_var_mm2
+        w = 2.0 * math.pi * params.estimator_hz
+        self._q = w ** 8 * r * T
+        self._K, P = steady_state(self._q, r, T)
+        f = params.frame
+        # (1 - 1e-9): the output stays under the maxima after rounding (the tracker's master
+        # monitoring compares with them exactly)
+        self._V, self._A, self._J = f.vel * (1.0 - 1e-9), f.acc * (1.0 - 1e-9), f.jerk
+        self._Jout = f.jerk * (1.0 + params.jerk_reserve)
+        #: jerk available for corrections on top of the belt's own (eq. 4.2)
+        self._authority = max(self._Jout - f.jerk, 0.25 * f.jerk)
+        wo = 2.0 * math.pi * params.generator_hz
+        if params.output_hz is None:
+            wo = output_pole(P, wo, self._authority)
+        #: the KINEMATIC law's pole [Hz]
+        self.output_hz = wo / (2.0 * math.pi)
+        # triple pole at -wo as a cascade: kp*kv*ka = wo^3, kv*ka = 3 wo^2, ka = 3 wo
+        self._g = (wo / 3.0, wo, 3.0 * wo)
+        self._gains = (3.0 * wo, 3.0 * wo * wo, wo ** 3)  # ka, ka*kv, ka*kv*kp
+        self._gate = params.gate_mm
+        self._warmup = params.warmup
+        self._lead_s = params.lead_samples * T
+        self._latency = enc.latency_samples
+        self._kinematic_design = params.design == ConditionerDesign.KINEMATIC
+        self._otg: Any = None  # (Ruckig, InputParameter, Trajectory), made when first needed
+        self._otg_d = 0.0
+        #: statistics: accepted samples, outliers, missing samples, lost events
+        self.n_accepted = 0
+        self.n_outliers = 0
+        self.n_missing = 0
+        self.n_lost = 0
+        self.reset()
+
+    def __getstate__(self):
+        d = self.__dict__.copy()
+        d["_otg"] = None  # Ruckig objects cannot be pickled: rebuilt when needed
+        return d
+
+    def __setstate__(self, d) -> None:
+        self.__dict__.update(d)
+
+    def reset(self) -> None:
+        """Forget the belt (the next sample starts the warm-up)."""
+        self.k = 0  # cycles since reset
+        # times are kept as (cycle, offset [s]) and only their differences computed, so that
+        # the results do not depend on where cycle 0 was (shells started at other times
+        # give bit-identical outputs)
+        self._x: tuple[float, float, float, float] | None = None  # (p, v, a, j) at _tx
+        self._tx = (0, 0.0)
+        self._P: np.ndarray | None = None
+        self._n = 0  # accepted samples since (re)start
+        self._bad = 0  # consecutive outliers
+        self._t_acc = (0, 0.0)  # instant of the last accepted sample
+        self._y: tuple[float, float, float] | None = None  # output at the last setpoint time
+        self._yj = 0.0
+        self.lost = False
+
+    # -- the estimator ------------------------------------------------------------------
+    @staticmethod
+    def _predict(x: tuple, dt: float) -> tuple[float, float, float, float]:
+        p, v, a, j = x
+        h = dt * dt
+        return (p + v * dt + a * h * 0.5 + j * h * dt / 6.0, v + a * dt + j * h * 0.5,
+                a + j * dt, j)
+
+    def _dt(self, a: tuple[int, float], b: tuple[int, float]) -> float:
+        """Time from instant b to instant a [s] (instants: (cycle, offset [s]))."""
+        return (a[0] - b[0]) * self.T + (a[1] - b[1])
+
+    def _measure(self, z: float, ts: tuple[int, float]) -> tuple[EventKind | None, float]:
+        """Feed the sample z [mm] taken at instant ts; (event kind or None, innovation)."""
+        if self._x is None:
+            self._x = (z, 0.0, 0.0, 0.0)
+            self._tx = ts
+            r = self._r
+            T = self.T
+            self._P = np.diag([r, (1e3 / T) ** 2 * r, (1e3 / T ** 2) ** 2 * r,
+                               (1e3 / T ** 3) ** 2 * r])
+            self._n = 1
+            self._t_acc = ts
+            return None, 0.0
+        dt = self._dt(ts, self._tx)
+        xp = self._predict(self._x, dt)
+        innov = z - xp[0]
+        if self._n >= self._warmup:
+            da = self._dt(ts, self._t_acc)
+            gate = self._gate + self._J * da * da * da / 6.0
+            if abs(innov) > gate:
+                self._bad += 1
+                self._x, self._tx = xp, ts
+                if self._bad >= self.params.max_outliers:
+                    return EventKind.LOST, innov
+                return EventKind.OUTLIER, innov
+            K = self._K
+            self._x = (xp[0] + K[0] * innov, xp[1] + K[1] * innov, xp[2] + K[2] * innov,
+                       xp[3] + K[3] * innov)
+        else:  # warm-up: the full filter from the wide prior
+            F = _f_matrix(dt)
+            P = F @ self._P @ F.T + _q_matrix(self._q, dt)
+            Kv = P[:, 0] / (P[0, 0] + self._r)
+            self._P = P - np.outer(Kv, P[0, :])
+            xn = np.asarray(xp) + Kv * innov
+            self._x = (float(xn[0]), float(xn[1]), float(xn[2]), float(xn[3]))
+        self._tx = ts
+        self._bad = 0
+        self._n += 1
+        self._t_acc = ts
+        return None, innov
+
+    # -- the cyclic call ----------------------------------------------------------------
+    def update(self, position_mm: float | None, time_offset_s: float = 0.0) -> ConditionedMaster:
+        """One cycle.  Returns the conditioned belt at this cycle's setpoint time."""
+        k = self.k
+        self.k = k + 1
+        T = self.T
+        if (position_mm is not None and self._n >= self._warmup and not self.lost
+                and self._y is not None and self._kinematic_design):
+            # the steady state, inlined (eq. 2.4, 3.1, 4.1): predict, gate, correct, output
+            tx = self._tx
+            kx = k - self._latency
+            off = float(time_offset_s)
+            dt = (kx - tx[0]) * T + (off - tx[1])
+            p, v, a, j = self._x  # type: ignore[misc]  # not None: n >= warmup
+            h = dt * dt
+            p += v * dt + a * h * 0.5 + j * h * dt / 6.0
+            v += a * dt + j * h * 0.5
+            a += j * dt
+            innov = position_mm - p
+            ta = self._t_acc
+            da = (kx - ta[0]) * T + (off - ta[1])
+            if -self._gate - self._J * da * da * da / 6.0 <= innov <= (
+                    self._gate + self._J * da * da * da / 6.0):
+                K0, K1, K2, K3 = self._K
+                self._x = (p + K0 * innov, v + K1 * innov, a + K2 * innov, j + K3 * innov)
+                self._tx = self._t_acc = (kx, off)
+                self._bad = 0
+                self._n += 1
+                self.n_accepted += 1
+                # the output law (eq. 4.1), from the estimate at the step's start (lead - 1)
+                dt = (self._lead_s - off) + (self._latency - 1) * T
+                p += K0 * innov
+                v += K1 * innov
+                a += K2 * innov
+                j += K3 * innov
+                h = dt * dt
+                pe = p + v * dt + a * h * 0.5 + j * h * dt / 6.0
+                ve = v + a * dt + j * h * 0.5
+                ae = a + j * dt
+                yp, yv, ya = self._y
+                g1, g2, g3 = self._gains
+                u = j + g1 * (ae - ya) + g2 * (ve - yv) + g3 * (pe - yp)
+                # inside the envelope with room to spare: no projection needed (eq. 4.3)
+                J = self._Jout
+                vn = yv + ya * T
+                an = ya + u * T
+                if (-J < u < J and -self._A < an < self._A
+                        and an * an < 2.0 * J * (self._V - abs(vn)) * 0.25):
+                    h = T * T
+                    yp, yv = (yp + yv * T + ya * h * 0.5 + u * h * T / 6.0,
+                              yv + ya * T + u * h * 0.5)
+                    self._y = (yp, yv, an)
+                    self._yj = u
+                    return ConditionedMaster(yp, yv, an, u, MasterStatus.OK, None)
+                self._kinematic((k, self._lead_s))
+                p, v, a = self._y
+                return ConditionedMaster(p, v, a, self._yj, MasterStatus.OK, None)
+        event = None
+        status = MasterStatus.OK
+        if self.lost and position_mm is not None:
+            self._x = None  # start again from this sample
+            self._n = 0
+            self.lost = False
+        if position_mm is None:
+            self.n_missing += 1
+            status = MasterStatus.COASTING
+        elif not self.lost:
+            ts = (k - self._latency, float(time_offset_s))
+            was_ready = self._n >= self._warmup
+            kind, innov = self._measure(float(position_mm), ts)
+            if kind is None:
+                self.n_accepted += 1
+                if not was_ready and self._n >= self._warmup:
+                    event = ConditioningEvent(EventKind.READY, k)
+            else:
+                self.n_outliers += 1
+                status = MasterStatus.COASTING
+                event = ConditioningEvent(kind, k, innov)
+                if kind == EventKind.LOST:
+                    self.n_lost += 1
+                    self.lost = True
+        if self._x is None or self._n < self._warmup:
+            return ConditionedMaster(0.0 if self._x is None else self._x[0], 0.0, 0.0, 0.0,
+                                     MasterStatus.STARTING, event)
+        if self.lost:
+            status = MasterStatus.LOST
+        t_sp = (k, self._lead_s)  # this cycle's setpoint instant
+        if self._y is None:
+            # the first valid cycle: the output starts on the estimate (within the limits)
+            p, v, a, _ = self._predict(self._x, self._dt(t_sp, self._tx))
+            V, A = self._V, self._A
+            self._y = (p, max(-V, min(V, v)), max(-A, min(A, a)))
+            self._yj = 0.0
+        elif self._kinematic_design:
+            self._kinematic(t_sp)
+        else:
+            self._otg_step(t_sp)
+        p, v, a = self._y
+        return ConditionedMaster(p, v, a, self._yj, status, event)
+
+    # -- output generators ---------------------------------------------------------------
+    def _kinematic(self, t_sp: tuple[int, float]) -> None:
+        """Eq. 4.1-4.3: the cascade law at the step's start, projected, integrated."""
+        T = self.T
+        tx = self._tx
+        dt = (t_sp[0] - tx[0]) * T + (t_sp[1] - tx[1]) - T
+        pe, ve, ae, je = self._x  # type: ignore[misc]  # set once warmed up
+        h = dt * dt
+        pe += ve * dt + ae * h * 0.5 + je * h * dt / 6.0
+        ve += ae * dt + je * h * 0.5
+        ae += je * dt
+        p, v, a = self._y  # type: ignore[misc]  # set on the first valid cycle
+        g1, g2, g3 = self._gains
+        V, A, J = self._V, self._A, self._Jout
+        # triple pole at -wo on the error to the estimate, with its jerk fed forward
+        u = je + g1 * (ae - a) + g2 * (ve - v) + g3 * (pe - p)
+        hi = min(J, (A - a) / T)
+        lo = max(-J, (-A - a) / T)
+        # braking distance (eq. 4.3): after the step the acceleration must still be able to
+        # return to 0 at J before |v| reaches V
+        vn = v + a * T
+        amax = math.sqrt(2.0 * J * (V - vn)) if vn < V else 0.0
+        amin = -math.sqrt(2.0 * J * (V + vn)) if vn > -V else 0.0
+        hi = min(hi, (amax - a) / T)
+        lo = max(lo, (amin - a) / T)
+        if lo > hi:  # outside the envelope (cannot come from the output itself): brake
+            u = max(-J, min(J, lo if a < 0.0 else hi))
+        elif not lo <= u <= hi:
+            # the law would saturate: a saturated triple integrator can wind up, so this
+            # step is the time-optimal one (eq. 4.4), which is stable for any error
+            if self._otg_step(t_sp, fallback=False):
+                return
+            u = max(lo, min(hi, u))
+        h = T * T
+        self._y = (p + v * T + a * h * 0.5 + u * h * T / 6.0, v + a * T + u * h * 0.5,
+                   a + u * T)
+        self._yj = u
+
+    def _otg_step(self, t_sp: tuple[int, float], fallback: bool = True) -> bool:
+        """Eq. 4.4: Ruckig in the estimate's frame: from e0 = output - estimate (both at the
+        step's start; the estimate moving on at its constant acceleration) to e = 0 in
+        minimum time, bounds shifted by the estimate's velocity and acceleration so that
+        the output itself stays within the frame's limits; the output is its first sample."""
+        from ruckig import InputParameter, Ruckig, Trajectory
+        if self._otg is None:
+            self._otg = (Ruckig(1), InputParameter(1), Trajectory(1))
+            inp = self._otg[1]
+            inp.target_position = [0.0]
+            inp.target_velocity = [0.0]
+            inp.target_acceleration = [0.0]
+        rk, inp, traj = self._otg
+        s = 1e-3  # Ruckig needs SI-like magnitudes (optimal.py)
+        T = self.T
+        V, A, J = self._V, self._A, self._Jout
+        pe, ve, ae, _ = self._predict(self._x, self._dt(t_sp, self._tx) - T)  # type: ignore[arg-type]
+        ae = max(-A, min(A, ae))
+        ve = max(-V, min(V, ve))
+        p, v, a = self._y  # type: ignore[misc]
+        inp.current_position = [(p - pe) * s]
+        inp.current_velocity = [(v - ve) * s]
+        inp.current_acceleration = [(a - ae) * s]
+        inp.min_velocity = [(-V - ve) * s]
+        inp.max_velocity = [(V - ve) * s]
+        inp.min_acceleration = [(-A - ae) * s]
+        inp.max_acceleration = [(A - ae) * s]
+        inp.max_jerk = [J * s]
+        try:
+            ok = int(rk.calculate(inp, traj)) >= 0
+        except Exception:  # noqa: BLE001 - the binding raises on unknown result codes
+            ok = False
+        if not ok:  # not seen; the kinematic law instead
+            if fallback:
+                self._kinematic(t_sp)
+            return False
+        (ep,), (ev,), (ea,) = traj.at_time(T)
+        h = T * T
+        na = ae + ea / s
+        self._y = (pe + ve * T + ae * h * 0.5 + ep / s, ve + ae * T + ev / s, na)
+        self._yj = (na - a) / T
+        return True

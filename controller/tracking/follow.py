@@ -1,0 +1,185 @@
+"""Following a master in SYNCED within the vector-norm sync limits (and closing the last gap).
+
+The published algorithm's "Full Synchronization" copies the master, all derivatives
+(docs/spec/tracking.md#2.1).  That
+is exact for an ideal master but copies whatever the master does to the drives: a quantised
+or glitching master, or the jump left when an approach ends a little off a master with a
+jerk.  :class:`SyncFollower` (``SyncFollow.LIMITED``, the default of the ``optimal``
+planner) copies the master only when that step is itself within the limits, else it
+closes the gap within them (docs/spec/master-conditioning.md#6):
+
+- copy test (eq. 6.1): from the last setpoint (p, v, a) the constant jerks that land on the
+  master's acceleration, velocity and position, (a_m - a)/T, 2(v_m - v - aT)/T^2 and
+  6(p_m - p - vT - aT^2/2)/T^3, must each be within J, and |a_m| <= A, |v_m| <= V (vector
+  norms).  A conditioned master (:mod:`.conditioning`) moves with a constant jerk per sample
+  (all three equal), so in steady state the follower copies it exactly, at the cost of a few
+  multiply-adds; an ideal master is copied exactly as before.
+- otherwise (eq. 6.2): in the master's frame, with the master taken back one sample with
+  its own jerk j_m, e0 = setpoint - master(k-1); a Ruckig plan brings e to 0 in minimum
+  time with the per-axis bounds (L - |x_m|) / sqrt(n) for L = V, A, J and x_m the master's
+  velocity, acceleration and jerk norms, so that the robot's v = v_m + e', a = a_m + e'',
+  j = j_m + e''' stay within the norms; the setpoint is master(k) + e(T).  Made again every
+  sample (the master may move anyhow); it ends in the copy once the gap is closed.
+
+Pure and deterministic; Ruckig objects are rebuilt on restore (not picklable).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+from .types import Limits
+from .vec import Vec
+
+#: lengths (mm or deg) -> Ruckig units (m or kdeg), as in optimal.py
+_S = 1e-3
+#: share of a limit kept when the master itself uses all of it (no bound of zero width)
+_MIN_SHARE = 0.05
+
+
+def _norm(x: Vec) -> float:
+    s = 0.0
+    for c in x:
+        s += c * c
+    return math.sqrt(s)
+
+
+class SyncFollower:
+    """Follow one channel's master within its sync ``limits`` (see the module docstring)."""
+
+    def __init__(self, limits: Limits, sample_time_s: float) -> None:
+        self.limits = limits
+        self.T = float(sample_time_s)
+        k = 1.0 - 1e-9
+        self._V, self._A, self._J = limits.vel * k, limits.acc * k, limits.jerk * k
+        self.n = 0
+        self._rk: Any = None
+        self._inp: Any = None
+        self._traj: Any = None
+        #: statistics: samples copied, samples closing a gap
+        self.n_copied = 0
+        self.n_closing = 0
+
+    def __getstate__(self):
+        d = self.__dict__.copy()
+        d["_rk"] = d["_inp"] = d["_traj"] = None
+        d["n"] = 0
+        return d
+
+    def __setstate__(self, d) -> None:
+        self.__dict__.update(d)
+
+    def _solver(self, n: int) -> None:
+        from ruckig import InputParameter, Ruckig, Synchronization, Trajectory
+        self.n = n
+        self._rk = Ruckig(n)
+        self._inp = inp = InputParameter(n)
+        self._traj = Trajectory(n)
+        inp.synchronization = Synchronization.TimeIfNecessary
+        zero = [0.0] * n
+        inp.target_position = zero
+        inp.target_velocity = zero
+        inp.target_acceleration = zero
+
+    def copyable(self, p: Vec, v: Vec, a: Vec, mp: Vec, mv: Vec, ma: Vec,
+                 p2: Vec | None = None, p3: Vec | None = None,
+                 mj: Vec | None = None) -> bool:
+        """Eq. 6.1: is the step from (p, v, a) onto the master within the limits?  The
+        constant jerk that lands on the master's acceleration, on its velocity and on its
+        position (three values, equal for a master that moves with a constant jerk over the
+        sample) must each be within J, and the master within V and A (vector norms).  With
+        the two setpoint positions before p (``p2``, ``p3``), the finite differences that
+        the step makes, (m - p)/T, (m - 2p + p2)/T^2, (m - 3p + 3p2 - p3)/T^3 (what the
+        drive sees), and those of the next two samples with the master going on at its
+        jerk ``mj``, must also be within V, A and J."""
+        T = self.T
+        ia = 1.0 / T
+        iv = 2.0 / (T * T)
+        ip = 6.0 / (T * T * T)
+        h = 0.5 * T * T
+        ja = jv = jp = 0.0
+        for i in range(len(p)):
+            x = (ma[i] - a[i]) * ia
+            ja += x * x
+            x = (mv[i] - v[i] - a[i] * T) * iv
+            jv += x * x
+            x = (mp[i] - p[i] - v[i] * T - a[i] * h) * ip
+            jp += x * x
+        J2 = self._J * self._J
+        if not (ja <= J2 and jv <= J2 and jp <= J2 and _norm(ma) <= self._A
+                and _norm(mv) <= self._V):
+            return False
+        if p2 is None or p3 is None:
+            return True
+        # the finite differences of this step and of the next two, the master going on
+        # with its jerk: a step that is not one constant jerk shows in the next ones
+        n = len(p)
+        h3 = T * T * T / 6.0
+        mj = (0.0,) * n if mj is None else mj
+        seq = [p3, p2, p, mp,
+               [mp[i] + mv[i] * T + ma[i] * h + mj[i] * h3 for i in range(n)],
+               [mp[i] + 2.0 * (mv[i] * T + ma[i] * 2.0 * h) + 8.0 * mj[i] * h3
+                for i in range(n)]]
+        T2 = T * T
+        lv, la, lj = self._V * self._V * T2, self._A * self._A * T2 * T2, J2 * T2 * T2 * T2
+        for k in (3, 4, 5):
+            fv = fa = fj = 0.0
+            q0, q1, q2, q3 = seq[k], seq[k - 1], seq[k - 2], seq[k - 3]
+            for i in range(n):
+                d1 = q0[i] - q1[i]
+                d2 = q1[i] - q2[i]
+                x = d1 - d2
+                y = x - (d2 - (q2[i] - q3[i]))
+                fv += d1 * d1
+                fa += x * x
+                fj += y * y
+            if fv > lv or fa > la or fj > lj:
+                return False
+        return True
+
+    def step(self, p: Vec, v: Vec, a: Vec, mp: Vec, mv: Vec, ma: Vec,
+             mj: Vec, p2: Vec | None = None, p3: Vec | None = None) -> tuple[Vec, Vec, Vec]:
+        """The setpoint of this sample from the last one (p, v, a), the positions of the two
+        before it (``p2``, ``p3``; None: not known) and the master of this sample
+        (mp, mv, ma, mj)."""
+        if self.copyable(p, v, a, mp, mv, ma, p2, p3, mj):
+            self.n_copied += 1
+            return tuple(mp), tuple(mv), tuple(ma)
+        self.n_closing += 1
+        n = len(p)
+        if n != self.n or self._rk is None:
+            self._solver(n)
+        T = self.T
+        rng = range(n)
+        h = 0.5 * T * T
+        h3 = T * T * T / 6.0
+        # the master one sample back, with its own jerk
+        mbp = [mp[i] - mv[i] * T + ma[i] * h - mj[i] * h3 for i in rng]
+        mbv = [mv[i] - ma[i] * T + mj[i] * h for i in rng]
+        mba = [ma[i] - mj[i] * T for i in rng]
+        r = 1.0 / math.sqrt(n)
+        s = _S
+        V, A, J = self._V, self._A, self._J
+        bv = max(V - _norm(mv), _MIN_SHARE * V) * r * s
+        ba = max(A - _norm(ma), _MIN_SHARE * A) * r * s
+        bj = max(J - _norm(mj), _MIN_SHARE * J) * r * s
+        inp = self._inp
+        inp.current_position = [(p[i] - mbp[i]) * s for i in rng]
+        inp.current_velocity = [(v[i] - mbv[i]) * s for i in rng]
+        inp.current_acceleration = [(a[i] - mba[i]) * s for i in rng]
+        inp.min_velocity = [-bv] * n
+        inp.max_velocity = [bv] * n
+        inp.min_acceleration = [-ba] * n
+        inp.max_acceleration = [ba] * n
+        inp.max_jerk = [bj] * n
+        try:
+            ok = int(self._rk.calculate(inp, self._traj)) >= 0
+        except Exception:  # noqa: BLE001 - the binding raises on unknown result codes
+            ok = False
+        if not ok:  # not seen: copy (the published reading)
+            return tuple(mp), tuple(mv), tuple(ma)
+        ep, ev, ea = self._traj.at_time(T)
+        si = 1.0 / s
+        return (tuple([mp[i] + ep[i] * si for i in rng]), tuple([mv[i] + ev[i] * si for i in rng]),
+                tuple([ma[i] + ea[i] * si for i in rng]))
