@@ -4,16 +4,13 @@ for the same encoder samples."""
 
 from __future__ import annotations
 
-import math
 
 import pytest
 
 from controller.simulate import load_scenario
 from controller.simulate.master import _quantise, build_profile, master_states
-from controller.simulate.runner import simulate
 from controller.tracking.conditioning import ConditioningParams, EncoderModel, MasterConditioner
 
-from controller.tracking import MotionState
 
 T = 0.002
 Q = 0.01
