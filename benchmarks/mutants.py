@@ -28,8 +28,8 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from controller.testing import mutants as mu  # noqa: E402
-from controller.testing.mutant_runs import FAMILIES  # noqa: E402
+from controller.testing import mutants as mu
+from controller.testing.mutant_runs import FAMILIES
 
 
 def main(argv=None) -> int:

@@ -40,6 +40,18 @@ def _int(text: str) -> int | None:
         return None
 
 
+def _base_type(base: str, section: str) -> int | None:
+    """The DataType of ``[section]`` in the unmutated file."""
+    for name, head, entries in mu.eds_sections(base):
+        if name.lower() == section.lower():
+            lines = base.splitlines()
+            for i in entries:
+                k, _, v = lines[i].partition("=")
+                if k.strip().lower() == "datatype":
+                    return _int(v)
+    return None
+
+
 def cia306_forbids(mutant: mu.Mutant, base: str) -> str | None:
     """Why CiA 306 forbids this EDS mutant, or None if it may be valid (then accepting it
     is not judged wrong here)."""
@@ -64,6 +76,8 @@ def cia306_forbids(mutant: mu.Mutant, base: str) -> str | None:
             return f"object list [{section}] entry deleted (count or object mismatch)"
         return None
     if mutant.label == "range":
+        if _base_type(base, section) in (0x09, 0x0A, 0x0B, 0x0F):
+            return None  # (a string has no range)
         return f"[{section}] DefaultValue outside its DataType's range"
     if re.fullmatch(r"[0-9a-f]{4}(sub[0-9a-f]+)?", sec):
         if key == "accesstype" and value.strip().lower() not in _ACCESS:
@@ -77,6 +91,8 @@ def cia306_forbids(mutant: mu.Mutant, base: str) -> str | None:
         if key == "subnumber" and _int(value) is None:
             return f"SubNumber={value}"
         if key in ("defaultvalue", "lowlimit", "highlimit"):
+            if _base_type(base, section) in (0x09, 0x0A, 0x0B, 0x0F):
+                return None  # (any text is a string's value)
             v = value.strip()
             if v.lower() in ("nan", "xx", "rw ro", "$nodeid+x") or v == "1e300" \
                     or ((iv := _int(v)) is not None and not -(1 << 63) <= iv < (1 << 64)):
@@ -109,8 +125,8 @@ class _BusBase:
         return load_bus_config(path)
 
     def _run_demo(self, cfg) -> str | None:
-        from ..canopen.master.cycle import Controller
         from ..canopen.apps.demo import PhotoEye, PickPlace
+        from ..canopen.master.cycle import Controller
         from ..canopen.slave.world import SimWorld
         if cfg.demo is None or cfg.tracking is None:
             return None
@@ -124,7 +140,7 @@ class _BusBase:
                                world.clock.now_ns() * 1e-9)
             try:
                 ctl.run(max_cycles=int(self.run_s / cfg.period_s) + 50)
-            except Exception as exc:  # noqa: BLE001
+            except Exception as exc:
                 from ..errors import CantrackError
                 if isinstance(exc, CantrackError):
                     return None  # a clear refusal at run time (the boot, the enable)

@@ -43,6 +43,7 @@ from ...errors import ConfigError
 from ...yamlmarks import Section, suggest
 from ..io.canbus import BAUDRATES_KBIT
 from ..protocol import od as odm
+from ..protocol.eds_check import check_eds
 
 if TYPE_CHECKING:  # (the sections are read with the bus part: they import BusConfig)
     from .demo import DemoConfig
@@ -273,6 +274,12 @@ def _slave(name: str, s: Section, base_dir: Path,
         raise s.error("dcf", f"EDS/DCF file {str(dcf)!r} not found (relative paths are "
                              "taken from the directory of the bus.yml)")
     node_id = s.int("node_id", min=1, max=127)
+    try:
+        check_eds(dcf, node_id)  # CiA 306 first: python canopen reads broken files silently
+    except ConfigError as exc:
+        raise ConfigError(f"{exc.bare_message} (the dcf of '{name}', {s.file}:"
+                          f"{s.value_line('dcf')})", file=exc.file, line=exc.line,
+                          key=exc.key) from None
     try:
         od = odm.load_od(dcf, node_id)
     except Exception as exc:  # canopen raises assorted errors on a broken file
