@@ -33,6 +33,8 @@ from pathlib import Path
 
 import pytest
 
+from controller.testing.speed import scaled
+
 ROOT = Path(__file__).resolve().parents[1]
 CONFIG = ROOT / "examples" / "bus" / "vcan.yml"
 SYNC_PERIOD_S = 0.1
@@ -107,10 +109,10 @@ def orchestrate(out: Path, channel: str) -> int:
         sim_y.wait()
         mark("y_killed")
         result["sim_y_returncode"] = sim_y.returncode
-        result["run_returncode"] = run.wait(timeout=120)
+        result["run_returncode"] = run.wait(timeout=scaled(120))
         mark("run_done")
         sim_ex.send_signal(signal.SIGTERM)
-        result["sim_ex_returncode"] = sim_ex.wait(timeout=30)
+        result["sim_ex_returncode"] = sim_ex.wait(timeout=scaled(30))
         mark("sim_done")
         result["ok"] = True
     except Exception as exc:  # noqa: BLE001 -- in result.json; exit code 1
@@ -269,8 +271,10 @@ def test_pdo_order_per_sync(session):
                          if all(cob in c[:c.index(rx)] for cob in (enc, x, y)))
     late = session.report["timing"]["late_inputs"]
     assert complete_first >= n - late, (complete_first, n, late, window)
-    sent = session.report["sent_pdos_per_sync"]
-    assert all(c == [rx, ry] for c in sent), session.report["sent_pdo_sequences"]
+    seqs = session.report["sent_pdo_sequences"]  # every cycle, counted by sequence
+    assert [s["cob_ids"] for s in seqs] == [[rx, ry]], seqs
+    assert seqs[0]["cycles"] == session.report["cycles"], seqs
+    assert all(c == [rx, ry] for c in session.report["sent_pdos_last"])
 
 
 @pytestmark_vcan
@@ -356,7 +360,8 @@ def test_sim_devices_ready_file_and_sigterm(tmp_path):
         info = json.loads(ready.read_text())
         assert info["pid"] == p.pid and info["devices"] == {"encoder": ENCODER, "x": X, "y": Y}
         p.send_signal(signal.SIGTERM)
-        assert p.wait(timeout=10) == 0, (tmp_path / "sim.out").read_text()
+        assert p.wait(timeout=scaled(10)) == 0, (tmp_path / "sim.out").read_text()
+        assert not ready.exists()  # no ready-file left behind for the next run
     finally:
         if p.poll() is None:
             p.kill()
@@ -373,9 +378,10 @@ def test_run_sigterm_during_boot_is_clean(tmp_path):
         _wait_file(ready, [p], 60)
         assert json.loads(ready.read_text())["nodes"] == {"encoder": ENCODER, "x": X, "y": Y}
         p.send_signal(signal.SIGTERM)
-        assert p.wait(timeout=10) == 0, (tmp_path / "run.out").read_text()
+        assert p.wait(timeout=scaled(10)) == 0, (tmp_path / "run.out").read_text()
         rep = json.loads(report.read_text())
         assert rep["end"] == "sigterm" and rep["exit_code"] == 0 and rep["cycles"] == 0
+        assert not ready.exists()
         assert rep["sync_period_us"] == 100000 and rep["sync_overflow"] == 10
     finally:
         if p.poll() is None:
@@ -425,7 +431,7 @@ def test_run_sigterm_while_tracking_disables_and_reports(tmp_path):
     try:
         _wait_file(cue, [p], 120)
         p.send_signal(signal.SIGTERM)
-        assert p.wait(timeout=10) == 0, (tmp_path / "run.out").read_text()
+        assert p.wait(timeout=scaled(10)) == 0, (tmp_path / "run.out").read_text()
         rep = json.loads(report.read_text())
         assert rep["end"] == "sigterm" and rep["exit_code"] == 0 and rep["reactions"] == 0
         assert rep["final_phase"] == "stopped" and rep["cycles"] >= 20

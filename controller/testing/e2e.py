@@ -40,7 +40,9 @@ def wait_file(path: Path, procs: Iterable[subprocess.Popen], timeout_s: float,
               running: Callable[[], bool] | None = None) -> None:
     """Wait until ``path`` exists; raise RuntimeError when one of ``procs`` exits first (or
     ``running()``, for a writer in a thread, turns false) or after ``timeout_s``."""
+    from .speed import scaled
     procs = list(procs)
+    timeout_s = scaled(timeout_s)  # (the cue is the file; the limit follows the load)
     t_end = time.monotonic() + timeout_s
     while not path.is_file():
         for p in procs:

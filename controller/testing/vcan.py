@@ -164,6 +164,8 @@ def run_native(argv: Sequence[str], timeout_s: float = 120.0,
     ok, why = ensure_native_vcan(channel)
     if not ok:
         raise VmError("native vcan not possible: " + why)
+    from .speed import scaled
+    timeout_s = scaled(timeout_s)  # (a limit: stretched by the machine's measured slowness)
     scratch = Path(scratch_dir) if scratch_dir is not None else Path(
         tempfile.mkdtemp(prefix="cantrack-vcan-"))
     scratch.mkdir(parents=True, exist_ok=True)

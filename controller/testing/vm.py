@@ -573,6 +573,10 @@ def run_in_vm(argv: Sequence[str], timeout_s: float = 120.0, env: Mapping[str, s
     """
     if not argv:
         raise VmError("run_in_vm: empty argv")
+    from .speed import scaled
+    # (limits, not waits: stretched by the host's measured slowness, so that a busy machine
+    #  does not time a healthy guest out)
+    timeout_s, boot_timeout_s = scaled(timeout_s), scaled(boot_timeout_s)
     if not re.fullmatch(r"[A-Za-z0-9_.-]{1,15}", channel):
         raise VmError(f"run_in_vm: channel {channel!r} is not an interface name "
                       "(1-15 characters of A-Z a-z 0-9 _ . -)")
