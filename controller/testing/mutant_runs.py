@@ -42,7 +42,7 @@ def _int(text: str) -> int | None:
 
 def _base_type(base: str, section: str) -> int | None:
     """The DataType of ``[section]`` in the unmutated file."""
-    for name, head, entries in mu.eds_sections(base):
+    for name, _head, entries in mu.eds_sections(base):
         if name.lower() == section.lower():
             lines = base.splitlines()
             for i in entries:

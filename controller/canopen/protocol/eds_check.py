@@ -31,6 +31,7 @@ import re
 import struct
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import NoReturn
 
 from ...errors import ConfigError
 
@@ -130,11 +131,18 @@ class _File:
                 self.fail(i, f"[{current.name}] {key}", "key given twice in the section")
             current.entries[key.lower()] = (key, value, i)
 
-    def fail(self, line: int | None, where: str | None, message: str) -> None:
+    def fail(self, line: int | None, where: str | None, message: str) -> NoReturn:
         raise ConfigError(f"{message} (CiA 306)", file=self.path, line=line, key=where)
 
     def section(self, name: str) -> _Section | None:
         return self.sections.get(name.lower())
+
+    def need(self, name: str) -> _Section:
+        """A section checked to be there (:func:`check_eds` does it first)."""
+        sec = self.section(name)
+        if sec is None:
+            self.fail(1, f"[{name}]", "mandatory section is missing")
+        return sec
 
 
 def _number(text: str) -> int | None:
@@ -233,11 +241,11 @@ def _check_lists(f: _File) -> set[int]:
                 f.fail(e[2], f"[{sec.name}] {e[0]}",
                        f"lists object {idx:04X}h, which has no [{idx:04X}] section")
             listed.add(idx)
-        for k, (key, value, line) in numbered.items():
+        for k, (key, _value, line) in numbered.items():
             if not (k.isdigit() and 1 <= int(k) <= n):
                 f.fail(line, f"[{sec.name}] {key}",
                        f"is not one of the entries 1..{n} (SupportedObjects={n})")
-    mand = f.section("MandatoryObjects")
+    mand = f.need("MandatoryObjects")
     mand_idx = {_number(v[1]) for k, v in mand.entries.items() if k != "supportedobjects"}
     for idx in (0x1000, 0x1001):
         if idx not in mand_idx:
@@ -255,7 +263,7 @@ def _check_lists(f: _File) -> set[int]:
 
 
 def _check_device_info(f: _File) -> None:
-    sec = f.section("DeviceInfo")
+    sec = f.need("DeviceInfo")
     for k, (key, value, line) in sec.entries.items():
         n = _number(value)
         if k.startswith("baudrate_") or k in _FLAGS:
@@ -283,15 +291,16 @@ def _check_object(f: _File, sec: _Section, m: re.Match, types: set[int], node_id
         f.fail(name[2] if name else sec.line, f"{where} ParameterName",
                "mandatory entry is missing or empty")
     ot = sec.get("ObjectType")
-    otype = 0x7
+    otype: int | None = 0x7
     if ot is not None:
         otype = _number(ot[1])
-        if otype not in OBJECT_TYPES:
+        if otype is None or otype not in OBJECT_TYPES:
             f.fail(ot[2], f"{where} ObjectType", f"(={ot[1]!r}) must be one of "
                    + ", ".join(f"0x{k:X} {v}" for k, v in OBJECT_TYPES.items()))
     if otype in (0x8, 0x9):
         if is_sub:
-            f.fail(ot[2], f"{where} ObjectType", "a sub-index cannot be an ARRAY or RECORD")
+            f.fail(ot[2] if ot else sec.line, f"{where} ObjectType",
+                   "a sub-index cannot be an ARRAY or RECORD")
         sn = sec.get("SubNumber")
         if sn is None:
             f.fail(sec.line, f"{where} SubNumber", f"mandatory for an "
@@ -372,7 +381,9 @@ def _check_profile(f: _File, node_id: int) -> None:
             f.fail(1, f"[{idx:04X}]", f"object {idx:04X}h is mandatory (CiA 301)")
     dev = f.section("1000")
     dv = dev.get("DefaultValue") if dev else None
-    profile = (_value(dv[1], node_id) or 0) & 0xFFFF if dv is not None and dv[1] else None
+    if dv is None or not dv[1]:
+        return
+    profile = (_value(dv[1], node_id) or 0) & 0xFFFF
     for idx in PROFILE_OBJECTS.get(profile, ()):
         if f.section(f"{idx:04X}") is None:
             f.fail(dv[2], f"[{idx:04X}]", f"object {idx:04X}h is mandatory for a CiA "
