@@ -63,7 +63,16 @@ def plc():
         until("2011h = 7", lambda: access() == 7)
         seen["access"] = node.sdo[0x2011].raw
         seen["name"] = node.sdo[0x1008].raw
-        node.sdo[0x2005].raw = 5
+        def engaged():
+            try:
+                node.sdo[0x2005].raw = 5
+                return True
+            except canopen.SdoAbortedError as exc:
+                if exc.code != 0x08000022:
+                    raise
+                return False  # (the controller is still enabling its drives: docs/plc.md)
+
+        until("engage taken", engaged)
         until("SYNCED", lambda: node.sdo[0x2000].raw == 2)
         tp1.wait_for_reception(5.0)
         seen["tpdo1_state"] = tp1["Tracker state"].raw
