@@ -52,7 +52,7 @@ def test_the_bounds_name_the_versions_the_code_needs():
     # can.cli (the shared bus flags) appeared in python-can 4.6.0
     assert not reqs["python-can"].specifier.contains("4.5.0")
     assert reqs["python-can"].specifier.contains("4.6.0")
-    # the simulated devices use canopen's private LocalNode._write_callbacks
+    # the slave engine overrides the calls canopen's SDO server makes (checked with 2.3-2.4)
     assert not reqs["canopen"].specifier.contains("2.5.0")
     # the FMI 2 slaves add what pythonfmu 0.7 does not write (InitialUnknowns, units)
     assert not reqs["pythonfmu"].specifier.contains("0.8.0")
@@ -65,23 +65,33 @@ def test_python_can_has_the_cli_helpers():
     assert callable(can.cli.create_bus_from_namespace)
 
 
-def test_canopen_local_node_registers_its_nmt_write_callback_where_we_remove_it():
-    """The simulated devices replace canopen's NMT slave: they remove ``nmt.on_write`` from
-    ``LocalNode._write_callbacks`` (private; see pyproject's bound on canopen)."""
+def test_canopen_sdo_server_goes_through_the_methods_the_slave_engine_overrides():
+    """The slave engine (controller/canopen/slave/engine.py) overrides ``LocalNode.get_data``/
+    ``set_data`` and ``SdoServer.on_request``/``send_response`` (see pyproject's bound on
+    canopen): canopen's own SDO server must still reach the object dictionary through
+    ``get_data``/``set_data`` and answer through ``send_response`` (docs/spec/tools.md#3)."""
     import canopen
 
-    node = canopen.LocalNode(5, canopen.ObjectDictionary())
-    callbacks = node._write_callbacks
-    assert node.nmt.on_write in callbacks, (
-        f"canopen {canopen.__version__}: LocalNode no longer registers NmtSlave.on_write in "
-        "_write_callbacks; the simulated devices' NMT replacement must be revisited")
-    callbacks.remove(node.nmt.on_write)
-    seen = []
-    node.add_write_callback(lambda **kw: seen.append((kw["index"], kw["subindex"])))
-    var = canopen.objectdictionary.ODVariable("Producer heartbeat time", 0x1017)
+    calls: list[str] = []
+
+    class Node(canopen.LocalNode):
+        def get_data(self, index, subindex, check_readable=False):
+            calls.append(f"get {index:04X}")
+            return super().get_data(index, subindex, check_readable)
+
+        def set_data(self, index, subindex, data, check_writable=False):
+            calls.append(f"set {index:04X}")
+            super().set_data(index, subindex, data, check_writable)
+
+    var = canopen.objectdictionary.ODVariable("A value", 0x2000)
     var.data_type = canopen.objectdictionary.UNSIGNED16
     var.access_type = "rw"
-    node.object_dictionary.add_object(var)
-    node.set_data(0x1017, 0, b"\x64\x00")  # 100 ms: canopen's NMT would start a heartbeat
-    assert seen == [(0x1017, 0)]  # our callback ran
-    assert getattr(node.nmt, "_send_task", None) is None  # canopen's heartbeat did not start
+    od = canopen.ObjectDictionary()
+    od.add_object(var)
+    node = Node(5, od)
+    answers: list[bytes] = []
+    node.sdo.send_response = lambda response: answers.append(bytes(response))
+    node.sdo.on_request(0x605, b"\x2b\x00\x20\x00\x64\x00\x00\x00", 0.0)  # download
+    node.sdo.on_request(0x605, b"\x40\x00\x20\x00\x00\x00\x00\x00", 0.0)  # upload
+    assert calls == ["set 2000", "get 2000"], calls
+    assert answers[0][0] == 0x60 and answers[1][:1] == b"\x4b" and answers[1][4:6] == b"\x64\x00"
