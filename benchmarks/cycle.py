@@ -90,15 +90,54 @@ def bare_loop(period_ns: int, seconds: float, spin_ns: int, work_ns: int = 20_00
             "missed": missed}
 
 
-def controller_run(period_us: int, seconds: float, tmp: Path, spin_ns: int,
-                   inline: bool) -> dict:
-    """The demo's workload (examples/bus/demo.yml: pick and place, 4 axes) in real time."""
+def _workload(period_us: int, seconds: float, tmp: Path):
     text = DEMO.read_text().replace("../../eds/", str(ROOT / "eds") + "/").replace(
         "  sync_period: 2000 ", f"  sync_period: {period_us} ").replace(
         "    silent_cycles: 5", "    silent_cycles: 25")
     cfg = load_bus_config(bus_yml(tmp, text=text, name=f"bench-{period_us}.yml"))
     # items every 2 s (pitch 600-700 mm at 300 mm/s): the gantry keeps up with them
     demo = replace(cfg.demo, items=100_000, duration_s=seconds, pitch_mm=(600.0, 700.0))
+    return cfg, demo
+
+
+def outcomes(app) -> dict[int, tuple[str, int | None]]:
+    """item index -> (outcome, trigger cycle) of every item the photo-eye reported."""
+    return {i.index: (i.outcome, i.trigger_cycle) for i in app.items()}
+
+
+def stepped_run(period_us: int, seconds: float, tmp: Path) -> dict:
+    """The same workload in stepped time: the outcome per item the real-time run must match."""
+    cfg, demo = _workload(period_us, seconds, tmp)
+    app = PickPlace(demo)
+    with SimWorld(cfg) as world:
+        ctl = Controller(cfg, world.transport, app, keep_trace=False, enforce_bus_load=False)
+        ctl.boot()
+        ctl.start()
+        app.eye = PhotoEye(world.device(cfg.tracking.conveyor.node).profile, demo,
+                           world.clock.now_ns() * 1e-9)
+        ctl.run()
+    return {"items": outcomes(app), "cycles": ctl.k}
+
+
+def compare_items(stepped: dict, realtime: dict, period_s: float, cycles: int,
+                  margin_s: float = 3.0) -> list[str]:
+    """Items the stepped run placed (triggered at least ``margin_s`` before the real-time
+    run's end) that the real-time run did not place."""
+    out = []
+    last = cycles - margin_s / period_s
+    for idx, (outcome, trig) in sorted(stepped.items()):
+        if outcome != "placed" or trig is None or trig > last:
+            continue
+        got = realtime.get(idx, ("not seen", None))[0]
+        if got != "placed":
+            out.append(f"item {idx}: stepped placed, real time {got}")
+    return out
+
+
+def controller_run(period_us: int, seconds: float, tmp: Path, spin_ns: int,
+                   inline: bool) -> dict:
+    """The demo's workload (examples/bus/demo.yml: pick and place, 4 axes) in real time."""
+    cfg, demo = _workload(period_us, seconds, tmp)
     app = PickPlace(demo)
     world = SimWorld(cfg, realtime=True, spin_ns=spin_ns, inline=inline)
     ctl = Controller(cfg, world.transport, app, keep_trace=False, enforce_bus_load=False)
@@ -119,8 +158,9 @@ def controller_run(period_us: int, seconds: float, tmp: Path, spin_ns: int,
     t["process_cpu_per_cycle_us"] = cpu / max(1, ctl.k) * 1e6
     t["process_cpu_share"] = cpu / wall
     t["events"] = [str(e) for e in ctl.events if e.reaction]
-    t["items_placed"] = sum(1 for i in app.done_items if i.outcome == "placed")
-    t["items_missed"] = sum(1 for i in app.done_items if i.outcome == "missed")
+    t["items_placed"] = app.placed
+    t["items_missed"] = app.missed
+    t["items"] = outcomes(app)
     t["failure"] = None if ctl.failure is None else str(ctl.failure)
     return t
 
@@ -142,14 +182,23 @@ def main(argv=None) -> int:
                         "the device thread; python's default 0.005 s)")
     p.add_argument("--fifo", action="store_true",
                    help="SCHED_FIFO priority 50 (needs root / CAP_SYS_NICE)")
+    p.add_argument("--cpu", type=int, nargs="+", metavar="N",
+                   help="run on these CPUs only (sched_setaffinity)")
+    p.add_argument("--baseline", metavar="DIR",
+                   help="a checkout of an earlier cantrack (e.g. `git worktree add DIR "
+                        "<commit>`): its benchmarks/cycle.py runs first with the same options, "
+                        "then a before/after table of the controller's CPU per cycle")
     args = p.parse_args(argv)
     if args.fifo:
         try:
             os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(50))
         except (PermissionError, AttributeError, OSError) as exc:
             print(f"SCHED_FIFO not available: {exc}", file=sys.stderr)
+    if args.cpu:
+        os.sched_setaffinity(0, set(args.cpu))
     if args.switch_interval:
         sys.setswitchinterval(args.switch_interval)
+    before = run_baseline(args, argv) if args.baseline else None
     results = {}
     print(f"python {sys.version.split()[0]}, {os.cpu_count()} CPUs, load average "
           f"{os.getloadavg()[0]:.2f}, {args.seconds:g} s per run"
@@ -163,7 +212,15 @@ def main(argv=None) -> int:
             floor = bare_loop(period_us * 1000, args.seconds, spin)
             ctl = controller_run(period_us, args.seconds, Path(tmp), spin,
                                  args.devices == "inline")
-            results[f"{period_ms:g}ms"] = {"floor": floor, "controller": ctl}
+            ref = stepped_run(period_us, args.seconds, Path(tmp))
+            diff = compare_items(ref["items"], ctl["items"], period_us * 1e-6, ref["cycles"])
+            if ctl["cycles"] < 0.95 * ref["cycles"]:
+                diff.insert(0, f"the real-time run ended after {ctl['cycles']} of "
+                               f"{ref['cycles']} cycles")
+            n_ref = sum(1 for o, _ in ref["items"].values() if o == "placed")
+            ctl["items"] = {str(k): v for k, v in ctl["items"].items()}
+            results[f"{period_ms:g}ms"] = {"floor": floor, "controller": ctl,
+                                           "stepped_placed": n_ref, "item_differences": diff}
             j, lat, late = ctl["sync_jitter_us"], ctl["latency_us"], ctl["sync_late_us"]
             cpu, comp = ctl["cpu_cycle_us"], ctl["cpu_compute_us"]
             n = ctl["cycles"]
@@ -184,7 +241,15 @@ def main(argv=None) -> int:
             print(f"process CPU per cycle (with the device thread): "
                   f"{ctl['process_cpu_per_cycle_us']:.0f} us "
                   f"({100 * ctl['process_cpu_share']:.0f} % of a core)")
-            print(f"items placed {ctl['items_placed']}, missed {ctl['items_missed']}")
+            print(f"items placed {ctl['items_placed']}, missed {ctl['items_missed']} "
+                  f"(stepped run of the same workload: {n_ref} placed); real time places "
+                  f"every item the stepped run places: {'PASS' if not diff else 'FAIL'}"
+                  + (f" {diff[:5]}" if diff else ""))
+            g = ctl.get("gc_us", {})
+            if g.get("n"):
+                print(f"gc in the cycle's slack: {g['n']} collections, p50/max "
+                      f"{g['p50']:.0f}/{g['max']:.0f} us; deadlines missed in a row: max "
+                      f"{ctl.get('missed_in_row_max')}")
             print(f"missed deadlines: {ctl['missed']} of {n} ({miss_pct:.3f} %); "
                   f"cycles with late inputs: {ctl['late_inputs']}; overruns (time base "
                   f"slipped): {ctl['overruns']}")
@@ -201,9 +266,82 @@ def main(argv=None) -> int:
             if abs(period_ms - 1.0) < 1e-9:
                 ok = miss_pct <= 0.1
                 print(f"target 1 ms (<= 0.1 % missed): {'PASS' if ok else 'FAIL'}")
+    if before is not None:
+        print_before_after(before, results)
+        results["baseline"] = before
     if args.json:
-        Path(args.json).write_text(json.dumps(results, indent=2))
+        Path(args.json).write_text(json.dumps(results, indent=2, default=str))
     return 0
+
+
+def run_baseline(args, argv) -> dict:
+    """The earlier checkout's benchmark with the same options (its own interpreter path)."""
+    import subprocess
+    base = Path(args.baseline).resolve()
+    out = Path(tempfile.mkdtemp()) / "baseline.json"
+    opts = [a for a in (argv if argv is not None else sys.argv[1:])]
+    drop = {"--baseline", "--json"}
+    clean, skip = [], False
+    for a in opts:
+        if skip:
+            skip = False
+            continue
+        if a in drop:
+            skip = True
+            continue
+        if any(a.startswith(d + "=") for d in drop):
+            continue
+        clean.append(a)
+    env = dict(os.environ, PYTHONPATH=str(base))
+    print(f"== baseline: {base} (git {_git_head(base)}) ==", flush=True)
+    r = subprocess.run([sys.executable, str(base / "benchmarks" / "cycle.py"), *clean,
+                        "--json", str(out)], env=env, cwd=str(base), text=True,
+                       capture_output=True)
+    print("\n".join(line for line in r.stdout.splitlines() if not line.startswith("[")))
+    if r.returncode != 0:
+        raise SystemExit(f"baseline benchmark failed: {r.stderr[-2000:]}")
+    return json.loads(out.read_text())
+
+
+def _git_head(path: Path) -> str:
+    import subprocess
+    r = subprocess.run(["git", "-C", str(path), "log", "-1", "--format=%h"],
+                       capture_output=True, text=True)
+    return r.stdout.strip() or "?"
+
+
+def print_before_after(before: dict, after: dict) -> None:
+    print(f"\n== before ({before.get('_head', 'baseline')}) / after (this checkout), "
+          f"same run ==")
+    print(f"{'':<40}{'before':>10}{'after':>10}{'after/before':>14}")
+    for period, res in after.items():
+        if period not in before:
+            continue
+        b, a = before[period]["controller"], res["controller"]
+        rows = [("CPU per cycle, controller p50 [us]", b["cpu_cycle_us"]["p50"],
+                 a["cpu_cycle_us"]["p50"]),
+                ("CPU per cycle, controller p99 [us]", b["cpu_cycle_us"]["p99"],
+                 a["cpu_cycle_us"]["p99"]),
+                ("  of it the compute p50 [us]", b["cpu_compute_us"]["p50"],
+                 a["cpu_compute_us"]["p50"]),
+                ("process CPU per cycle [us]", b["process_cpu_per_cycle_us"],
+                 a["process_cpu_per_cycle_us"]),
+                ("missed deadlines", b["missed"], a["missed"]),
+                ("floor: missed deadlines", before[period]["floor"]["missed"],
+                 res["floor"]["missed"]),
+                ("items placed", b["items_placed"], a["items_placed"])]
+        print(f"-- {period}")
+        for name, x, y in rows:
+            ratio = f"{y / x:14.2f}" if x else f"{'-':>14}"
+            print(f"{name:<40}{x:10.1f}{y:10.1f}{ratio}")
+        if abs(float(period.rstrip("ms")) - 2.0) < 1e-9:
+            r = a["cpu_cycle_us"]["p50"] / b["cpu_cycle_us"]["p50"]
+            print(f"target 2 ms: controller CPU per cycle <= 1/3 of before: "
+                  f"{'PASS' if r <= 1 / 3 else 'FAIL'} ({r:.2f})")
+        if abs(float(period.rstrip("ms")) - 1.0) < 1e-9:
+            ok = a["missed"] <= 2 * max(1, res["floor"]["missed"])
+            print(f"target 1 ms: missed deadlines <= 2 x the floor's: "
+                  f"{'PASS' if ok else 'FAIL'} ({a['missed']} vs {res['floor']['missed']})")
 
 
 if __name__ == "__main__":

@@ -51,7 +51,8 @@ def test_demo_command(tmp_path):
     lines = [json.loads(line) for line in (out / "telemetry.jsonl").read_text().splitlines()]
     assert lines[0]["type"] == "run" and lines[0]["axes"] == ["x", "y", "z", "c"]
     cycles = [d for d in lines if d["type"] == "cycle"]
-    assert len(cycles) == lines[0]["cycles"] and cycles[-1]["phase"] == "stopped"
+    assert lines[-1]["type"] == "end" and lines[-1]["end"] == "end"
+    assert len(cycles) == lines[-1]["cycles"] and cycles[-1]["phase"] == "stopped"
     items = [d for d in lines if d["type"] == "item"]
     assert [i["outcome"] for i in items] == ["placed", "placed"]
     assert all(i["max_error_mm"] < 0.2 for i in items)

@@ -14,6 +14,7 @@ from ..canopen.apps.axis_motion import (
     check_max_time,
     load_axes_config,
 )
+from ..canopen.apps.axis_jobs import JobResult
 from ..canopen.io import canbus
 from ..canopen.io.transport import RealtimeTransport
 from ..canopen.master.cycle import CycleRecord
@@ -40,8 +41,15 @@ def run_axis_command(args: argparse.Namespace,
     check_max_time(args.max_time, "--max-time")
     cfg = load_axes_config(args.config)
     status = StatusLine(args.quiet, every_s=0.5)
+    signals = canbus.StopSignals()
+    stopped = [False]
 
     def on_cycle(ctl: MotionController, rec: CycleRecord) -> None:
+        if signals.requested and not stopped[0]:
+            # SIGTERM / Ctrl-C: the controlled stop of --max-time (jerk-limited to rest, then
+            # the drives disabled); the report says ERROR_ABORTED, exit code 1
+            stopped[0] = True
+            ctl.request_stop(JobResult.ERROR_ABORTED, f"stopped by {signals.requested.upper()}")
         if not status.due(rec.t_s):
             return
         job = ctl.job
@@ -59,7 +67,9 @@ def run_axis_command(args: argparse.Namespace,
         settings, cfg = canbus.bus_config_for(args, cfg)  # -b wins; load checked at it
         transport = RealtimeTransport(canbus.open_configured(settings))
     try:
-        result = action(cfg, transport=transport, on_cycle=on_cycle, max_time_s=args.max_time)
+        with signals:
+            result = action(cfg, transport=transport, on_cycle=on_cycle,
+                            max_time_s=args.max_time)
     finally:
         if transport is not None:
             transport.close()

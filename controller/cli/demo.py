@@ -6,19 +6,29 @@ follows each for the pick, de-syncs and places it: a robot group on the conveyor
 (:mod:`controller.canopen.apps.demo`, :mod:`controller.conveyor`).  Stepped time by default (finishes in
 seconds), ``--realtime`` for wall-clock time.  Writes to ``-o DIR`` (default
 ./cantrack-demo/): ``bus.log`` (candump format, python-can's CanutilsLogWriter),
-``telemetry.jsonl``, ``demo.png``.
+``telemetry.jsonl`` (written as it happens), ``demo.png``.
+
+Long runs: memory stays bounded (the last 1000 items and events, a decimated plot trace);
+``--file-size``/``--file-time``/``--keep`` rotate bus.log and telemetry.jsonl (python-can's
+``can.logger`` naming).  SIGTERM and Ctrl-C end the demo like its duration: the drives stop,
+every file is complete, exit 0 (3 if a supervision reaction stopped the drives).
 """
 
 from __future__ import annotations
 
 import argparse
+import math
+import sys
 import time
 from dataclasses import replace
 from pathlib import Path
 
 from ..canopen.apps.demo import PhotoEye, PickPlace
-from ..canopen.apps.report import plot_run, status_line, summary_table, write_telemetry
+from ..canopen.apps.report import PlotTrace, Telemetry, plot_run, status_line, summary_table
 from ..canopen.config import load_bus_config
+from ..canopen.io.canbus import StopSignals, seconds
+from ..canopen.io.rotating import BusLog
+from ..canopen.io.rotating import add_arguments as add_rotation_arguments
 from ..canopen.master.cycle import Controller
 from ..canopen.master.plc_node import attach_plc_node
 from ..canopen.slave.world import SimWorld
@@ -27,6 +37,23 @@ from ..resources import data_path
 from .common import StatusLine
 
 DEFAULT_CONFIG = data_path("examples", "bus", "demo.yml")
+
+
+def _count(text: str) -> int:
+    """A number of items: an integer, also written as 1e30 (then it is that integer)."""
+    try:
+        v = int(text)
+    except ValueError:
+        try:
+            f = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not a number of items") from None
+        if not math.isfinite(f) or f != int(f):
+            raise argparse.ArgumentTypeError(f"{text!r} is not a whole number of items")
+        v = int(f)
+    if v < 1:
+        raise argparse.ArgumentTypeError(f"{text!r}: must be >= 1")
+    return v
 
 
 def build_parser(prog: str) -> argparse.ArgumentParser:
@@ -39,14 +66,23 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
                    help="output directory (default: ./cantrack-demo)")
     p.add_argument("--realtime", action="store_true",
                    help="run in wall-clock time (default: stepped, as fast as possible)")
-    p.add_argument("--items", type=int, help="number of items (default: from .demo)")
-    p.add_argument("--duration", type=float, help="stop after this many seconds of tracking")
+    p.add_argument("--items", type=_count,
+                   help="number of items (default: from .demo; made one at a time)")
+    p.add_argument("--duration", type=seconds,
+                   help="stop after this many seconds of tracking")
     p.add_argument("--no-plot", action="store_true", help="do not write demo.png")
     p.add_argument("-q", "--quiet", action="store_true", help="no live status line")
     p.add_argument("--plc-node", action="store_true",
                    help="the controller is also a CANopen node for a PLC "
                         "(eds/cantrack-controller.eds: SDO server, TPDO1-3, RPDO1)")
+    p.add_argument("--telemetry-every", type=int, default=1, metavar="N",
+                   help="a cycle line in telemetry.jsonl every N cycles (default 1)")
+    add_rotation_arguments(p)
     return p
+
+
+#: cycle records kept for the plot (decimated beyond that)
+PLOT_POINTS = 20_000
 
 
 def main(argv: list[str] | None = None, prog: str = "cantrack demo") -> int:
@@ -56,47 +92,73 @@ def main(argv: list[str] | None = None, prog: str = "cantrack demo") -> int:
         raise ConfigError("the demo needs .tracking and .demo sections", file=cfg.file)
     demo = cfg.demo
     if args.items is not None:
-        if args.items < 1:
-            raise ConfigError(f"--items (={args.items}) must be >= 1")
         demo = replace(demo, items=args.items)
     if args.duration is not None:
         demo = replace(demo, duration_s=args.duration)
+    if args.telemetry_every < 1:
+        raise ConfigError(f"--telemetry-every (={args.telemetry_every}) must be >= 1")
     out = Path(args.output)
     out.mkdir(parents=True, exist_ok=True)
     enc_name = cfg.tracking.conveyor.node
     app = PickPlace(demo)
     status = StatusLine(args.quiet)
+    plot = PlotTrace(PLOT_POINTS) if not args.no_plot else None
+    telemetry: list[Telemetry] = []
 
     def on_cycle(ctl: Controller, rec) -> None:
+        if telemetry:
+            telemetry[0].cycle(rec)
+        if plot is not None:
+            plot.add(rec)
         if status.due(rec.t_s):
-            status.show(rec.t_s, status_line(ctl, rec, f"items {len(app.done_items)}/"
+            status.show(rec.t_s, status_line(ctl, rec, f"items {app.finished}/"
                                                        f"{demo.items}  "))
 
+    rotation = dict(max_age_s=args.file_time, keep=args.keep)
+    bus_log = BusLog(out / "bus.log", args.file_size, **rotation)
     wall0 = time.perf_counter()
-    with SimWorld(cfg, realtime=args.realtime, bus_log=out / "bus.log") as world:
-        ctl = Controller(cfg, world.transport, app, on_cycle=on_cycle)
-        plc = attach_plc_node(ctl, app, cfg.plc) if args.plc_node else None
-        if plc is not None:
-            app.trigger_overflow = plc.config.trigger_overflow
-        ctl.boot()
-        ctl.start()
-        encoder = world.device(enc_name)
-        app.eye = PhotoEye(encoder.profile, demo, world.clock.now_ns() * 1e-9)
-        ctl.run()
+    with StopSignals() as stop, SimWorld(cfg, realtime=args.realtime, bus_log=bus_log) as world:
+        ctl = Controller(cfg, world.transport, app, on_cycle=on_cycle, keep_trace=False)
+        tel = Telemetry(out / "telemetry.jsonl", ctl, max_bytes=args.file_size,
+                        every=args.telemetry_every, **rotation)
+        telemetry.append(tel)
+        app.on_item = tel.item
+        try:
+            plc = attach_plc_node(ctl, app, cfg.plc) if args.plc_node else None
+            if plc is not None:
+                app.trigger_overflow = plc.config.trigger_overflow
+            ctl.boot()
+            ctl.start()
+            encoder = world.device(enc_name)
+            app.eye = PhotoEye(encoder.profile, demo, world.clock.now_ns() * 1e-9)
+            ctl.run(stop=stop)
+            if stop.requested:
+                end = stop.requested
+        except BaseException as exc:  # every exit keeps the data: the files are completed
+            end, error = "error", f"{type(exc).__name__}: {exc}"
+            raise
+        finally:
+            tel.close(end, error, app.items(), extra={
+                "items_placed": app.placed, "items_missed": app.missed,
+                "items_ignored": app.ignored,
+                "wall_s": time.perf_counter() - wall0})
     wall = time.perf_counter() - wall0
     status.close()
     items = app.items()
-    write_telemetry(out / "telemetry.jsonl", ctl, items)
-    if not args.no_plot:
-        plot_run(out / "demo.png", ctl, items)
-    print(summary_table(ctl, items, wall))
-    reactions = [e for e in ctl.events if e.reaction]
-    for e in reactions:
-        print(f"event: {e}")
+    if plot is not None:
+        plot_run(out / "demo.png", ctl, items, trace=plot)
+    print(summary_table(ctl, items, wall, counts=(app.placed, app.missed,
+                                                  app.eye.detected if app.eye else 0),
+                        ignored_count=app.ignored))
+    for e in ctl.events:
+        if e.reaction:
+            print(f"event: {e}")
     if plc is not None:
         print(f"plc node: id {plc.node_id}, SDO server 0x{0x600 + plc.node_id:03X}/"
               f"0x{0x580 + plc.node_id:03X}, TPDOs sent "
               + ", ".join(f"0x{p.cob_id:03X} x{p.sent}" for p in plc.tpdos))
     print(f"files: {out / 'bus.log'}, {out / 'telemetry.jsonl'}"
           + ("" if args.no_plot else f", {out / 'demo.png'}"))
-    return 0
+    if end in ("sigterm", "sigint"):
+        print(f"stopped by {end.upper()} after {ctl.k * cfg.period_s:.2f} s", file=sys.stderr)
+    return ctl.exit_code()

@@ -13,7 +13,10 @@ producer takes over.  Heartbeat supervision of the slaves counts from the start 
 
 SIGTERM and Ctrl-C stop the run like the end of ``--duration``: disable the drives, write the
 report, exit (``--ready-file PATH`` tells a script when that holds: it is written once the
-bus is open and the boot starts).  Exit codes: 0 = normal end; 3 = a supervision reaction
+bus is open and the boot starts, and removed when the command ends, however it ends).
+``--telemetry`` is written as the run goes (rotated by ``--file-size``/``--file-time``,
+``--keep`` files kept); the report holds summaries, not one entry per cycle.  Exit codes:
+0 = normal end; 3 = a supervision reaction
 happened (quick stop of the drives: heartbeat lost, drive fault, EMCY, following error,
 another actor, ...) and every drive confirmed its stop; 4 = a reaction happened and a drive's
 stop could not be confirmed (after the escalation, :mod:`.stopping`); 2 = an error (bad
@@ -29,20 +32,23 @@ controller sent after each SYNC, timing and the exit code.
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import time
+from collections import deque
 from collections.abc import Callable
 
-from ..canopen.apps.report import status_line, summary_table, timing_summary, write_telemetry
+from ..canopen.apps.report import Telemetry, status_line, summary_table, timing_summary
 from ..canopen.config import load_bus_config
 from ..canopen.config.busload import check_bus_load
 from ..canopen.io import canbus
 from ..canopen.io.files import write_json_atomic
+from ..canopen.io.rotating import add_arguments as add_rotation_arguments
 from ..canopen.io.transport import RealtimeTransport
 from ..canopen.master.app import ConveyorFollow
 from ..canopen.master.cycle import Controller
 from ..canopen.master.plc_node import attach_plc_node, plc_summary
-from ..errors import CanError
+from ..errors import CanError, ConfigError
 from ..tracking import Mode
 from .common import StatusLine, add_bus_arguments
 
@@ -51,13 +57,17 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog=prog, description=__doc__.split("\n\n")[0])
     p.add_argument("config", help="bus.yml with a .tracking section")
     add_bus_arguments(p)
-    p.add_argument("--duration", type=float, help="stop after this many seconds")
+    p.add_argument("--duration", type=canbus.seconds, help="stop after this many seconds")
     p.add_argument("--engage-at", type=float, help="engage this many s after tracking starts")
     p.add_argument("--disengage-at", type=float, help="disengage this many s after the start")
     p.add_argument("--offset", type=float, nargs=3, default=(0.0, 0.0, 0.0),
                    metavar=("X", "Y", "Z"), help="the belt point to follow [mm]")
     p.add_argument("--mode", choices=("absolute", "relative"), default="relative")
-    p.add_argument("--telemetry", metavar="FILE", help="write JSON-lines telemetry")
+    p.add_argument("--telemetry", metavar="FILE",
+                   help="write JSON-lines telemetry as the run goes (rotated with --file-size, "
+                        "--file-time, --keep)")
+    p.add_argument("--telemetry-every", type=int, default=1, metavar="N",
+                   help="a cycle line in the telemetry every N cycles (default 1)")
     p.add_argument("--report", metavar="FILE", help="write a JSON run report")
     p.add_argument("--ready-file", metavar="PATH",
                    help="write this file (JSON: pid, node-IDs) when the bus is open and the "
@@ -67,7 +77,35 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
                         "(eds/cantrack-controller.eds, docs/plc.md); on by itself with a "
                         ".plc section in the bus.yml")
     p.add_argument("-q", "--quiet", action="store_true", help="no live status line")
+    p.add_argument("--fifo", type=int, metavar="PRIO", nargs="?", const=50,
+                   help="real-time scheduling SCHED_FIFO at this priority (default 50; needs "
+                        "root or CAP_SYS_NICE)")
+    p.add_argument("--cpu", type=int, nargs="+", metavar="N",
+                   help="run on these CPUs only (sched_setaffinity; e.g. an isolated core)")
+    add_rotation_arguments(p, "the telemetry")
     return p
+
+
+def apply_scheduling(fifo: int | None, cpus: list[int] | None) -> list[str]:
+    """SCHED_FIFO and CPU affinity for this process, as asked; what could not be done, as
+    warnings (the run goes on with the normal scheduler)."""
+    warnings = []
+    if cpus:
+        try:
+            os.sched_setaffinity(0, set(cpus))
+        except (OSError, ValueError) as exc:
+            warnings.append(f"--cpu {' '.join(map(str, cpus))}: {exc}")
+    if fifo is not None:
+        try:
+            lo, hi = os.sched_get_priority_min(os.SCHED_FIFO), \
+                os.sched_get_priority_max(os.SCHED_FIFO)
+            if not lo <= fifo <= hi:
+                raise ValueError(f"priority must be {lo}..{hi}")
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(fifo))
+        except (OSError, ValueError, AttributeError) as exc:
+            warnings.append(f"--fifo {fifo}: SCHED_FIFO not available ({exc}); normal "
+                            "scheduling")
+    return warnings
 
 
 #: exit code when a supervision reaction (quick stop) happened (:meth:`Controller.exit_code`)
@@ -96,17 +134,46 @@ class BootHeartbeat:
         self.stop_flag = stop_flag
         self.active = period_ms > 0
         self._next: int | None = None
-        self.cycles: list[list[int]] = []
+        #: the PDOs sent after each of the last SYNCs (bounded); every cycle is counted in
+        #: ``sequences`` (COB-ID sequence -> cycles)
+        self.cycles: deque[list[int]] = deque(maxlen=self.LAST)
+        self.sequences: dict[tuple[int, ...], int] = {}
+        self._current: list[int] | None = None
         if self.active:
             self.inner.send(self.cob, b"\x00")  # boot-up
             self._next = self.clock.now_ns() + self.period_ns
 
+    #: cycles whose sent PDOs are kept (the report's ``sent_pdos_last``)
+    LAST = 100
+    #: distinct PDO sequences counted (more are counted as one "other")
+    SEQUENCES = 64
+
     def send(self, can_id: int, data) -> None:
         self.inner.send(can_id, data)
         if can_id == 0x80:
-            self.cycles.append([])
-        elif self.cycles and 0x180 <= can_id < 0x580:
-            self.cycles[-1].append(can_id)
+            self._close_cycle()
+            self._current = []
+            self.cycles.append(self._current)
+        elif self._current is not None and 0x180 <= can_id < 0x580:
+            self._current.append(can_id)
+
+    def _close_cycle(self) -> None:
+        if self._current is None:
+            return
+        key = tuple(self._current)
+        if key in self.sequences or len(self.sequences) < self.SEQUENCES:
+            self.sequences[key] = self.sequences.get(key, 0) + 1
+        else:
+            self.sequences[("other",)] = self.sequences.get(("other",), 0) + 1
+        self._current = None
+
+    def pdo_summary(self) -> tuple[dict[tuple, int], list[list[int]]]:
+        """(sequence -> cycles) over the whole run, the last cycles' PDOs."""
+        seqs = dict(self.sequences)
+        if self._current is not None:
+            key = tuple(self._current)
+            seqs[key] = seqs.get(key, 0) + 1
+        return seqs, [list(c) for c in self.cycles]
 
     def subscribe(self, can_id: int, callback) -> None:
         self.inner.subscribe(can_id, callback)
@@ -144,14 +211,14 @@ def _node_of(cfg, source: str) -> int | None:
     return None
 
 
-def run_report(ctl: Controller, changes: list[dict], pdo_cycles: list[list[int]],
+def run_report(ctl: Controller, changes, pdos: BootHeartbeat,
                exit_code: int, end: str, wall_s: float, error: str | None = None) -> dict:
-    """The ``--report`` JSON of a run (see the module docstring)."""
+    """The ``--report`` JSON of a run (see the module docstring): summaries, never a list
+    per cycle (the last events, the last state changes, the PDOs of the last cycles, the
+    counts of every sequence of PDOs sent after a SYNC)."""
     cfg = ctl.cfg
     m = cfg.master
-    seqs: dict[tuple, int] = {}
-    for c in pdo_cycles:
-        seqs[tuple(c)] = seqs.get(tuple(c), 0) + 1
+    seqs, last = pdos.pdo_summary()
     events = []
     for e in ctl.events:
         d = e.as_dict()
@@ -170,13 +237,15 @@ def run_report(ctl: Controller, changes: list[dict], pdo_cycles: list[list[int]]
         "pdos": _pdo_cobs(cfg),
         "boot_s": (ctl.boot_result.duration_ns / 1e9) if ctl.boot_result else None,
         "cycles": ctl.k, "wall_s": wall_s, "final_phase": ctl.phase.value,
-        "reactions": sum(1 for e in ctl.events if e.reaction),
+        "reactions": ctl.events.reactions,
+        "events_total": ctl.events.total,
         "drives": [s.as_dict() for s in ctl.stops],
         "bad_frames": {f"{cob:03X}h": n for cob, n in sorted(ctl.hygiene.counts.items())},
         "other_actors": dict(ctl.actors.counts),
         "events": events,
-        "state_changes": changes,
-        "sent_pdos_per_sync": [list(c) for c in pdo_cycles],
+        "state_changes": list(changes),
+        "state_changes_total": getattr(changes, "total", len(changes)),
+        "sent_pdos_last": last,
         "sent_pdo_sequences": [{"cob_ids": list(k), "cycles": v} for k, v in seqs.items()],
         "timing": timing_summary(ctl) if ctl.k else None,
     }
@@ -192,9 +261,23 @@ def _pdo_cobs(cfg) -> dict:
     return out
 
 
+class _Changes(deque):
+    """The phase / tracker state changes of a run: the last 1000, and how many in all."""
+
+    def __init__(self) -> None:
+        super().__init__(maxlen=1000)
+        self.total = 0
+
+    def append(self, x) -> None:
+        super().append(x)
+        self.total += 1
+
+
 def main(argv: list[str] | None = None, prog: str = "cantrack run") -> int:
     args = build_parser(prog).parse_args(argv)
     cfg = load_bus_config(args.config)
+    if args.telemetry_every < 1:
+        raise ConfigError(f"--telemetry-every (={args.telemetry_every}) must be >= 1")
     period = cfg.period_s
     def cyc(s: float | None) -> int | None:
         return None if s is None else round(s / period)
@@ -203,20 +286,14 @@ def main(argv: list[str] | None = None, prog: str = "cantrack run") -> int:
                          end_cycle=cyc(args.duration))
     settings, cfg = canbus.bus_config_for(args, cfg)
     check_bus_load(cfg)  # before the bus is opened: a refusal leaves nothing to clean up
+    for w in apply_scheduling(args.fifo, args.cpu):
+        print(f"cantrack: warning: {w}", file=sys.stderr)
     bus = canbus.open_configured(settings)
     status = StatusLine(args.quiet, every_s=1.0, every_tty_s=0.2)
-    changes: list[dict] = []
+    changes = _Changes()
     prev: list = [None]
-    terminated = [False]
-
-    def on_term(signum, frame) -> None:
-        terminated[0] = True
-
-    old_term = canbus.set_sigterm(on_term)
-    if args.ready_file:
-        canbus.write_ready_file(args.ready_file, {"master": cfg.master.node_id,
-                                                  "nodes": {name: sl.node_id
-                                                            for name, sl in cfg.slaves.items()}})
+    signals = canbus.StopSignals().__enter__()
+    telemetry: list[Telemetry] = []
 
     def on_cycle(ctl: Controller, rec) -> None:
         key = (rec.phase, rec.state)
@@ -224,26 +301,36 @@ def main(argv: list[str] | None = None, prog: str = "cantrack run") -> int:
             prev[0] = key
             changes.append({"cycle": rec.cycle, "t_s": rec.t_s, "phase": rec.phase,
                             "state": _STATE_NAMES.get(rec.state, str(rec.state))})
+        if telemetry:
+            telemetry[0].cycle(rec)
         if status.due(rec.t_s):
             status.show(rec.t_s, status_line(ctl, rec))
 
     def stop() -> bool:
-        # SIGTERM.  (A controlled stop ends by itself: confirmed, or unconfirmed after its
-        # escalation; while running, --duration counts from the tracking start.)
-        return terminated[0]
+        # SIGTERM/SIGINT.  (A controlled stop ends by itself: confirmed, or unconfirmed after
+        # its escalation; while running, --duration counts from the tracking start.)
+        return signals()
 
     inner = RealtimeTransport(bus)
     transport = BootHeartbeat(inner, cfg.master.node_id, cfg.master.heartbeat_producer_ms,
-                              lambda: terminated[0])
+                              signals)
     wall0 = time.perf_counter()
-    ctl = Controller(cfg, transport, app, on_cycle=on_cycle, keep_trace=args.telemetry is not None,
+    ctl = Controller(cfg, transport, app, on_cycle=on_cycle, keep_trace=False,
                      enforce_bus_load=False)  # (checked above, at the bus's bitrate)
     plc = attach_plc_node(ctl, app, cfg.plc) if (args.plc_node or cfg.plc is not None) \
         else None
     if plc is not None:
         print(plc_summary(plc), file=sys.stderr)
+    if args.telemetry:
+        telemetry.append(Telemetry(args.telemetry, ctl, max_bytes=args.file_size,
+                                   max_age_s=args.file_time, keep=args.keep,
+                                   every=args.telemetry_every))
     end, error, code = "duration", None, 0
     try:
+        if args.ready_file:  # (from here on SIGTERM is handled and the file is removed)
+            canbus.write_ready_file(args.ready_file, {
+                "master": cfg.master.node_id,
+                "nodes": {name: sl.node_id for name, sl in cfg.slaves.items()}})
         try:
             ctl.boot()
             transport.active = False  # the cycle's heartbeat producer takes over
@@ -251,32 +338,32 @@ def main(argv: list[str] | None = None, prog: str = "cantrack run") -> int:
                 w.last_ns = None      # supervision counts from the cycle start
                 w.lost = False
             ctl.run(stop=stop)
-            if terminated[0]:
-                end = "sigterm"
-            elif ctl.phase.value == "stopped" and any(e.reaction for e in ctl.events):
+            if signals.requested:
+                end = signals.requested
+            elif ctl.phase.value == "stopped" and ctl.events.reactions:
                 end = "stopped"
-        except KeyboardInterrupt:
-            end = "interrupted"
-            ctl.disable()
         except Terminated:
-            end = "sigterm"
-        except CanError as exc:
-            end, error = "error", str(exc)
+            end = signals.requested or "sigterm"
+        except BaseException as exc:  # every exit writes complete files, then reports
+            end, error = "error", str(exc) or type(exc).__name__
             ctl.final_states()
+            if telemetry:
+                telemetry[0].close(end, error)
             if args.report:
-                write_json_atomic(args.report, run_report(ctl, changes, transport.cycles, 2, end,
-                                                    time.perf_counter() - wall0, error))
+                write_json_atomic(args.report, run_report(ctl, changes, transport, 2, end,
+                                                          time.perf_counter() - wall0, error))
             raise
     finally:
-        canbus.set_sigterm(old_term)
+        signals.__exit__()
         transport.close()
+        canbus.remove_ready_file(args.ready_file)
         status.close()
     code = ctl.exit_code()
-    if args.telemetry:
-        write_telemetry(args.telemetry, ctl)
+    if telemetry:
+        telemetry[0].close(end, error, extra={"exit_code": code})
     if args.report:
-        write_json_atomic(args.report, run_report(ctl, changes, transport.cycles, code, end,
-                                            time.perf_counter() - wall0, error))
+        write_json_atomic(args.report, run_report(ctl, changes, transport, code, end,
+                                                  time.perf_counter() - wall0, error))
     print(summary_table(ctl, [], time.perf_counter() - wall0))
     if ctl.k:
         t = timing_summary(ctl)

@@ -8,13 +8,15 @@ Faults can be scheduled: ``--inject T:NODE:ACTION[:ARG]`` with ACTION one of
 ``noise:counts`` (encoder), ``disturb:counts`` (drive), ``power-off``.
 
 ``--ready-file PATH``: written (JSON: pid, devices, node-IDs) once every simulated device has
-booted (sent its boot-up message), for a test harness that starts the controller next.
-SIGTERM (and SIGINT) stop the devices cleanly with exit code 0.
+booted (sent its boot-up message), for a test harness that starts the controller next, and
+removed when the command ends.  SIGTERM (and SIGINT) stop the devices cleanly with exit
+code 0.
 """
 
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 import time
 
@@ -41,8 +43,13 @@ def parse_injection(spec: str, names: list[str]) -> tuple[float, str, str, str |
         t = float(parts[0])
     except ValueError:
         raise ConfigError(f"--inject {spec!r}: time {parts[0]!r} is not a number") from None
+    if not (math.isfinite(t) and t >= 0):
+        raise ConfigError(f"--inject {spec!r}: time {parts[0]!r} must be a finite number of "
+                          "seconds >= 0")
     node, action = parts[1], parts[2]
     arg = parts[3] if len(parts) > 3 else None
+    if arg is not None:
+        _check_arg(spec, action, arg)
     if node not in names:
         raise ConfigError(f"--inject {spec!r}: unknown node {node!r} (one of "
                           f"{', '.join(names)})")
@@ -50,6 +57,26 @@ def parse_injection(spec: str, names: list[str]) -> tuple[float, str, str, str |
         raise ConfigError(f"--inject {spec!r}: unknown action {action!r} (one of "
                           f"{', '.join(ACTIONS)})")
     return t, node, action, arg
+
+
+def _check_arg(spec: str, action: str, arg: str) -> None:
+    """The ARG of an action: an integer code (fault, emcy), a finite number (noise, disturb)."""
+    if action in ("fault", "emcy"):
+        try:
+            code = int(arg, 0)
+        except ValueError:
+            raise ConfigError(f"--inject {spec!r}: code {arg!r} is not an integer") from None
+        if not 0 <= code <= 0xFFFF:
+            raise ConfigError(f"--inject {spec!r}: code {arg!r} must be 0..0xFFFF")
+    elif action in ("noise", "disturb"):
+        try:
+            v = float(arg)
+        except ValueError:
+            raise ConfigError(f"--inject {spec!r}: {arg!r} is not a number") from None
+        if not (math.isfinite(v) and v >= 0):
+            raise ConfigError(f"--inject {spec!r}: {arg!r} must be a finite number >= 0")
+    else:
+        raise ConfigError(f"--inject {spec!r}: {action} takes no argument")
 
 
 def apply_injection(rack: DeviceRack, node: str, action: str, arg: str | None) -> None:
@@ -81,7 +108,7 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
     p.add_argument("config", help="bus.yml (slaves and the .simulation section)")
     add_bus_arguments(p)
     p.add_argument("--only", nargs="+", metavar="NAME", help="simulate only these slaves")
-    p.add_argument("--duration", type=float, help="stop after this many seconds")
+    p.add_argument("--duration", type=canbus.seconds, help="stop after this many seconds")
     p.add_argument("--inject", action="append", default=[], metavar="T:NODE:ACTION[:ARG]",
                    help="schedule a fault (repeatable)")
     p.add_argument("--ready-file", metavar="PATH",
@@ -124,16 +151,11 @@ def main(argv: list[str] | None = None, prog: str = "cantrack sim-devices") -> i
     if not args.quiet:
         print(f"simulating {', '.join(rack.devices)} on {bus.channel_info}", file=sys.stderr)
     t_end = None if args.duration is None else args.duration
-    stopping = [False]
-
-    def on_term(signum, frame):  # SIGTERM: leave the loop, clean shutdown, exit 0
-        stopping[0] = True
-
-    old_term = canbus.set_sigterm(on_term)
+    stopping = canbus.StopSignals().__enter__()  # SIGTERM/SIGINT: clean shutdown, exit 0
     ready = args.ready_file is None
     status = StatusLine(args.quiet, every_s=1.0, every_tty_s=0.0)
     try:
-        while not stopping[0] and (t_end is None or clock.now_ns() * 1e-9 < t_end):
+        while not stopping() and (t_end is None or clock.now_ns() * 1e-9 < t_end):
             if not ready and all(d.nmt_state != NMT_INITIALISING
                                  for d in rack.devices.values()):
                 write_ready_file(args.ready_file, rack)
@@ -148,8 +170,11 @@ def main(argv: list[str] | None = None, prog: str = "cantrack sim-devices") -> i
     except KeyboardInterrupt:
         pass
     finally:
-        canbus.set_sigterm(old_term)
-        thread.stop()
-        bus.shutdown()
-        status.close()
+        stopping.__exit__()
+        try:
+            thread.stop()
+        finally:
+            bus.shutdown()
+            canbus.remove_ready_file(args.ready_file)
+            status.close()
     return 0

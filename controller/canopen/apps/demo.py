@@ -40,6 +40,8 @@ from __future__ import annotations
 
 import math
 import random
+from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from enum import Enum
 from typing import TYPE_CHECKING
@@ -97,28 +99,66 @@ class Item:
 
 
 class PhotoEye:
-    """Simulated photo-eye: item edges from the true belt travel (the encoder's profile)."""
+    """Simulated photo-eye: item edges from the true belt travel (the encoder's profile).
+
+    Items are made one at a time, when the previous one has been reported (``demo.items``
+    may be 10**30: nothing is built up front); the edge time of the next item is the time the
+    belt has travelled its pitch further (bisection on the exact travel).  A belt that never
+    gets there (it stops or runs backwards for good) simply brings no more items."""
+
+    #: how far ahead the search for the belt reaching an item looks [s of machine time]
+    HORIZON_S = 1e6
 
     def __init__(self, profile: SpeedProfile, demo: DemoConfig, start_s: float) -> None:
-        rng = random.Random(demo.seed)
-        self.items: list[Item] = []
-        b = profile.travel(start_s + demo.first_item_s)
-        for i in range(demo.items):
-            t = self._time_at(profile, b, start_s)
-            self.items.append(Item(i, round(t * 1e9), rng.uniform(*demo.lateral),
-                                   rng.uniform(*demo.angle),
-                                   item_type=demo.item_types[i % len(demo.item_types)]
-                                   if demo.item_types else 0))
-            b += rng.uniform(*demo.pitch_mm)
-        self._next = 0
+        self._rng = random.Random(demo.seed)
+        self._profile = profile
+        self._demo = demo
+        self._travel = profile.travel(start_s + demo.first_item_s)
+        self._t_lo = start_s
+        self.made = 0  # items of the belt made so far
+        self._made_next: Item | None = None
+        #: items of the PLC's trigger input not reported yet (2004h of the controller node)
+        self._extra: deque[Item] = deque()
+        self._count = 0  # index of the next item (belt and PLC items share the numbering)
+        self._detected = 0
+        self._make_next()
 
-    @staticmethod
-    def _time_at(profile: SpeedProfile, travel: float, t_lo: float) -> float:
-        lo, hi = t_lo, t_lo + 1.0
+    @property
+    def total(self) -> int:
+        """Items the photo-eye will see from the belt (``demo.items``)."""
+        return self._demo.items
+
+    @property
+    def exhausted(self) -> bool:
+        """No more items will come (all made and reported, or the belt never gets there)."""
+        return self._made_next is None and not self._extra
+
+    def _make_next(self) -> None:
+        """The next belt item (its edge time), or None when there is none."""
+        self._made_next = None
+        if self.made >= self._demo.items:
+            return
+        t = self._time_at(self._travel)
+        if t is None:
+            return
+        types = self._demo.item_types
+        item = Item(self._count, round(t * 1e9), self._rng.uniform(*self._demo.lateral),
+                    self._rng.uniform(*self._demo.angle),
+                    item_type=types[self.made % len(types)] if types else 0)
+        self._count += 1
+        self.made += 1
+        self._t_lo = t
+        self._travel += self._rng.uniform(*self._demo.pitch_mm)
+        self._made_next = item
+
+    def _time_at(self, travel: float) -> float | None:
+        profile = self._profile
+        lo = self._t_lo
+        hi = lo + 1.0
         while profile.travel(hi) < travel:
-            hi += 2 * (hi - lo)
-            if hi > 1e6:
-                raise ValueError("the belt never reaches the item (speed profile <= 0?)")
+            lo, hi = hi, hi + 2 * (hi - lo)
+            if hi - self._t_lo > self.HORIZON_S:
+                return None
         for _ in range(80):
             mid = 0.5 * (lo + hi)
             if profile.travel(mid) < travel:
@@ -130,23 +170,31 @@ class PhotoEye:
     @property
     def detected(self) -> int:
         """Items whose edge has been reported so far (PLC triggers included)."""
-        return self._next
+        return self._detected
 
     def trigger(self, t_edge_ns: int, lateral: float = 0.0, angle: float = 0.0) -> Item:
         """An edge reported from outside (the PLC's trigger input, 2004h of the controller
         node): a new item at the photo-eye at ``t_edge_ns``, on the belt's centre line."""
-        item = Item(len(self.items), int(t_edge_ns), lateral, angle)
-        i = self._next
-        while i < len(self.items) and self.items[i].t_edge_ns <= item.t_edge_ns:
-            i += 1
-        self.items.insert(i, item)
+        item = Item(self._count, int(t_edge_ns), lateral, angle)
+        self._count += 1
+        self._extra.append(item)
         return item
 
     def edges_until(self, t_ns: int) -> list[Item]:
+        """The items whose edge is at or before ``t_ns``, in edge order."""
         out = []
-        while self._next < len(self.items) and self.items[self._next].t_edge_ns <= t_ns:
-            out.append(self.items[self._next])
-            self._next += 1
+        while True:
+            nxt = self._made_next
+            extra = self._extra[0] if self._extra else None
+            if extra is not None and extra.t_edge_ns <= t_ns and (
+                    nxt is None or extra.t_edge_ns <= nxt.t_edge_ns):
+                out.append(self._extra.popleft())
+            elif nxt is not None and nxt.t_edge_ns <= t_ns:
+                out.append(nxt)
+                self._make_next()
+            else:
+                break
+        self._detected += len(out)
         return out
 
 
@@ -157,13 +205,22 @@ class PickPlace:
     demo: DemoConfig
     eye: PhotoEye | None = None
     step: Step = Step.WAIT
-    done_items: list[Item] = field(default_factory=list)
+    #: the last ``history`` finished items (placed or missed), oldest first; the counts of
+    #: all of them are ``placed`` / ``missed`` (a run of weeks keeps O(1) items)
+    done_items: deque[Item] = field(default_factory=deque)
     current: Item | None = None
     frame: MovingFrame | None = None
     robot: RobotGroup | None = None
-    imfs_log: list[int] = field(default_factory=list)
-    #: items missed so far (counted as they end, for :meth:`status`)
+    #: the robot group's IMFS at each change (0, 1, -1, 0, ...), the last 1000 changes
+    imfs_log: deque[int] = field(default_factory=lambda: deque(maxlen=1000))
+    #: finished items (and conveyor-model item records) kept for the summary and telemetry
+    history: int = 1000
+    #: called with each item when it is finished (streaming telemetry)
+    on_item: Callable[[Item], None] | None = None
+    placed: int = 0
     missed: int = 0
+    #: items of a type the robot does not track (.tracking.items.track_types)
+    ignored: int = 0
     _by_entry: dict = field(default_factory=dict)
     #: a full trigger buffer drops the newest trigger or the oldest waiting item
     trigger_overflow: TriggerOverflow = TriggerOverflow.DROP_NEWEST
@@ -229,10 +286,33 @@ class PickPlace:
             return
         item.outcome = outcome
         item.reason = reason
+        if outcome == "placed":
+            self.placed += 1
+        elif outcome == "ignored":
+            self.ignored += 1
+        else:
+            self.missed += 1
         self.done_items.append(item)
-        self.missed += outcome == "missed"
         if item is self.current:
             self.current = None
+        r = self.robot
+        if r is not None:
+            rec = r.records.get(item.entry_id)
+            if rec is not None:
+                item.model = rec.as_dict()
+        # bounded: the oldest finished items, their entries and model records go
+        while len(self.done_items) > self.history:
+            old = self.done_items.popleft()
+            self._by_entry.pop(old.entry_id, None)
+            if r is not None:
+                r.records.pop(old.entry_id, None)
+        if self.on_item is not None:
+            self.on_item(item)
+
+    @property
+    def finished(self) -> int:
+        """Items placed, missed or ignored so far."""
+        return self.placed + self.missed + self.ignored
 
     def _cell(self) -> tuple[RobotGroup, MovingFrame]:
         """The robot group and its moving frame (made by ``setup``)."""
@@ -260,7 +340,8 @@ class PickPlace:
         step = self.step
         if step == Step.WAIT:
             entry = r.buffer.current(f.name, r.tracked_types(f))
-            while entry is not None and self._by_entry[entry.id].outcome != "pending":
+            while entry is not None and (entry.id not in self._by_entry
+                                         or self._by_entry[entry.id].outcome != "pending"):
                 r.nextitem(f)  # (an item de-synced by STOP stays in the buffer: drop it)
                 entry = r.buffer.current(f.name, r.tracked_types(f))
             if entry is not None and not r.links and ctl.master.ready:
@@ -300,7 +381,9 @@ class PickPlace:
         if ctl.tracker.state is TrackState.OFF and ctl.master.ready:
             ctl.tracker.engage(Mode.ABSOLUTE)  # (de-synced by a silent encoder: follow again)
         out = r.update()
-        self.imfs_log.append(int(out.imfs))
+        imfs = int(out.imfs)
+        if not self.imfs_log or self.imfs_log[-1] != imfs:
+            self.imfs_log.append(imfs)
         for ev in out.events:
             ev_item = self._by_entry.get(ev.item) if ev.item is not None else None
             if ev_item is not None and ev.kind == "engaged" and ev_item.outcome == "pending":
@@ -391,19 +474,21 @@ class PickPlace:
     def done(self, ctl: Controller, cycle: int) -> bool:
         if self._end_cycle is not None and cycle >= self._end_cycle:
             return True
-        all_seen = self.eye is not None and len(self.done_items) == len(self.eye.items)
+        all_seen = self.eye is not None and self.eye.exhausted \
+            and self.finished == self.eye.detected
         if not (all_seen and self.step == Step.WAIT):
             return False
         r = self._cell()[0]
         return not r.links and not r.virtual.busy
 
     def items(self) -> list[Item]:
-        """All items (by index), with the conveyor model's telemetry in ``Item.model``."""
+        """The last ``history`` finished items and the pending ones the photo-eye reported,
+        by index, with the conveyor model's telemetry in ``Item.model``."""
         if self.robot is not None:
             for it in self._by_entry.values():
                 rec = self.robot.records.get(it.entry_id)
                 if rec is not None:
                     it.model = rec.as_dict()
         seen = {i.index for i in self.done_items}
-        rest = [i for i in (self.eye.items if self.eye else []) if i.index not in seen]
-        return sorted(self.done_items + rest, key=lambda i: i.index)
+        rest = [i for i in self._by_entry.values() if i.index not in seen]
+        return sorted(list(self.done_items) + rest, key=lambda i: i.index)

@@ -70,6 +70,8 @@ scales).  Keys (``*`` = required)::
       cycle:
         compute_at: 0.5              # the cycle computes at the latest this fraction of the
                                      #   period after its SYNC (inputs late -> stale)
+        max_missed_in_row: 25        # quick stop after this many SYNC deadlines missed in a
+                                     #   row ("deadlines_missed"; 0 = never)
         drive_delay_cycles: 1        # a drive reaches the target it applies at SYNC k+1 at
                                      #   SYNC k+1+this (CSP interpolation over one period);
                                      #   the master is predicted that much further ahead
@@ -206,6 +208,8 @@ class TrackingConfig:
     track_types: frozenset[int] | None = None
     #: the reaction to each disturbance by another actor (:mod:`.reactions`)
     reactions: Reactions = field(default_factory=Reactions)
+    #: quick stop after this many SYNC deadlines missed in a row (0: never)
+    max_missed_in_row: int = 25
 
     @property
     def drive_nodes(self) -> tuple[str, ...]:
@@ -246,6 +250,7 @@ def parse_tracking(s: Section, cfg: BusConfig) -> TrackingConfig:
     it.finish()
     c = s.section("cycle", {})
     compute_at = c.float("compute_at", 0.5, min=0.05, max=0.95)
+    max_missed_in_row = c.int("max_missed_in_row", 25, min=0, max=1_000_000)
     delay = c.int("drive_delay_cycles", 1, min=0, max=10)
     c.finish()
     t = s.section("timeouts", {})
@@ -258,7 +263,7 @@ def parse_tracking(s: Section, cfg: BusConfig) -> TrackingConfig:
     reactions = parse_reactions(s.section("reactions", {}))
     s.finish()
     return TrackingConfig(conveyor, kind, axes, tracker, (start, end), compute_at, timeouts,
-                          delay, track_types, reactions)
+                          delay, track_types, reactions, max_missed_in_row)
 
 
 def _slave_ref(s: Section, key: str, cfg: BusConfig, profile: int, what: str) -> str:

@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import logging
+import math
 import os
 import signal
 from typing import Any
@@ -106,3 +107,56 @@ def write_ready_file(path: str, info: dict[str, Any]) -> None:
     script never reads half a file.
     """
     write_json_atomic(path, {"pid": os.getpid(), **info}, indent=None)
+
+
+class StopSignals:
+    """SIGTERM (and SIGINT: Ctrl-C) ask the command to stop: ``requested`` becomes the
+    signal's name and the command ends as at the end of its duration, writing complete files;
+    the previous handlers come back on exit.  A second signal of the same kind while stopping
+    is ignored.  Only the main thread can install handlers (in-process tests: a no-op)."""
+
+    def __init__(self, sigint: bool = True) -> None:
+        self.requested: str | None = None
+        self._signals = [signal.SIGTERM] + ([signal.SIGINT] if sigint else [])
+        self._old: dict = {}
+
+    def _handler(self, signum, frame) -> None:
+        if self.requested is None:
+            self.requested = signal.Signals(signum).name.lower()
+
+    def __call__(self) -> bool:
+        return self.requested is not None
+
+    def __enter__(self) -> StopSignals:
+        for sig in self._signals:
+            try:
+                self._old[sig] = signal.signal(sig, self._handler)
+            except ValueError:  # not the main thread
+                pass
+        return self
+
+    def __exit__(self, *exc) -> None:
+        for sig, old in self._old.items():
+            signal.signal(sig, old)
+        self._old.clear()
+
+
+def remove_ready_file(path: str | None) -> None:
+    """Remove a readiness file at the end of a command (a script must not take a stale one
+    of an earlier run for the next)."""
+    if path:
+        try:
+            os.unlink(path)
+        except FileNotFoundError:
+            pass
+
+
+def seconds(text: str) -> float:
+    """A duration [s]: a finite number > 0 (not inf, nan, or <= 0)."""
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number of seconds") from None
+    if not (math.isfinite(v) and v > 0):
+        raise argparse.ArgumentTypeError(f"{text!r}: must be a finite number of seconds > 0")
+    return v

@@ -34,7 +34,7 @@ from __future__ import annotations
 import gc
 import math
 import time
-from array import array
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from enum import Enum
@@ -65,6 +65,7 @@ from .stopping import (
     statusword_from_sdo,
 )
 from .supervision import BusActors, EmcyMonitor, HeartbeatMonitor
+from .timing import Histogram, Ring, Run
 from .sync import SyncProducer
 
 if TYPE_CHECKING:
@@ -118,18 +119,30 @@ class CycleRecord:
 
 @dataclass
 class Timing:
-    """Per-cycle timing [ns] (real time only; all zero in stepped time)."""
+    """Cycle timing [ns] in bounded memory (:mod:`.master.timing`: histograms with exact
+    count/max and 0.5 % percentiles, rings of the last values); real time only (empty in
+    stepped time)."""
 
-    sync_late: array = field(default_factory=lambda: array("q"))
-    sync_interval: array = field(default_factory=lambda: array("q"))
-    compute: array = field(default_factory=lambda: array("q"))
-    latency: array = field(default_factory=lambda: array("q"))
-    cpu_cycle: array = field(default_factory=lambda: array("q"))
-    cpu_compute: array = field(default_factory=lambda: array("q"))
+    sync_late: Histogram = field(default_factory=Histogram)
+    sync_interval: Histogram = field(default_factory=Histogram)
+    #: |SYNC interval - period|
+    jitter: Histogram = field(default_factory=Histogram)
+    #: the last 500 jitter values (the status line's p99)
+    recent_jitter: Ring = field(default_factory=lambda: Ring(500))
+    compute: Histogram = field(default_factory=Histogram)
+    latency: Histogram = field(default_factory=Histogram)
+    cpu_cycle: Histogram = field(default_factory=Histogram)
+    cpu_compute: Histogram = field(default_factory=Histogram)
     missed: int = 0
+    #: deadlines missed in a row: the current streak, the longest, how many streaks
+    missed_run: Run = field(default_factory=Run)
     late_inputs: int = 0
     #: cycles started more than a period late: the time base slipped (no SYNC burst)
     overruns: int = 0
+    #: the periodic garbage collections in the cycle's slack (real time)
+    gc: Histogram = field(default_factory=Histogram)
+    #: the compute CPU [ns] of the first cycles (the start-up budget check), then None
+    startup: list[int] | None = field(default_factory=list)
 
 
 class Controller:
@@ -138,10 +151,18 @@ class Controller:
     #: unexpected exceptions in a row after which the cycle itself is abandoned: the last
     #: resort (:meth:`_emergency_stop`) sends quick stop and NMT stop without the cycle code
     MAX_INTERNAL_ERRORS = 3
+    #: the start-up budget check: over the first BUDGET_CHECK_S of tracking, a compute p99
+    #: above BUDGET_SHARE of the period is reported (a warning event)
+    BUDGET_CHECK_S = 2.0
+    BUDGET_SHARE = 0.5
+    #: real time: the cyclic garbage is collected every this many cycles, in the slack after
+    #: the RPDOs (the collector is paused while cycling: a collection at a random allocation
+    #: would cost a deadline)
+    GC_EVERY_CYCLES = 1000
 
     def __init__(self, cfg: BusConfig, transport: Transport,
                  app: Application | None = None, *, events: EventLog | None = None,
-                 keep_trace: bool = True,
+                 keep_trace: bool | int = True,
                  on_cycle: Callable[[Controller, CycleRecord], None] | None = None,
                  enforce_bus_load: bool = True) -> None:
         if cfg.tracking is None:
@@ -189,7 +210,13 @@ class Controller:
         self.k = 0
         self.t0 = 0
         self.timing = Timing()
-        self.trace: list[CycleRecord] = []
+        #: the cycle records: all (keep_trace=True: tests, short runs), the last N
+        #: (keep_trace=N: bounded, long runs) or none (False)
+        self.trace: list[CycleRecord] | deque[CycleRecord] = \
+            deque(maxlen=keep_trace) if keep_trace is not True and keep_trace else []
+        self.max_missed_in_row = self.tc.max_missed_in_row
+        self._gc_paused = False
+        self._budget_cycles = max(1, round(self.BUDGET_CHECK_S / cfg.period_s))
         self.failure: CanError | None = None
         self.boot_result: BootResult | None = None
         self._enable_start_ns: int | None = None
@@ -274,25 +301,45 @@ class Controller:
         cpu2 = time.thread_time_ns()
         tm = self.timing
         if clock.realtime:
-            tm.sync_late.append(t_sent - deadline)
+            tm.sync_late.add(t_sent - deadline)
             if self._last_sync_sent is not None:
-                tm.sync_interval.append(t_sent - self._last_sync_sent)
-            tm.compute.append(t_done - t_c)
+                interval = t_sent - self._last_sync_sent
+                tm.sync_interval.add(interval)
+                jit = abs(interval - self.period_ns)
+                tm.jitter.add(jit)
+                tm.recent_jitter.add(jit)
+            tm.compute.add(t_done - t_c)
             snap = self.master.snapshot
             if snap is not None and snap[2] == k:
-                tm.latency.append(t_done - snap[1])
-            tm.cpu_compute.append(cpu2 - cpu1)
-            tm.cpu_cycle.append(cpu2 - cpu0)
+                tm.latency.add(t_done - snap[1])
+            tm.cpu_compute.add(cpu2 - cpu1)
+            tm.cpu_cycle.add(cpu2 - cpu0)
             if t_done > deadline + self.period_ns:
                 tm.missed += 1
+                streak = tm.missed_run.hit()
+                if streak == self.max_missed_in_row:
+                    self._deadlines_missed(k, streak)
+            else:
+                tm.missed_run.miss()
             if not complete:
                 tm.late_inputs += 1
+            if tm.startup is not None and self.phase is Phase.RUNNING:
+                tm.startup.append(cpu2 - cpu1)
+                if len(tm.startup) >= self._budget_cycles:
+                    self._check_budget(k)
             if rec is not None:
                 rec.sync_late_us = (t_sent - deadline) / 1e3
                 rec.compute_us = (t_done - t_c) / 1e3
         self._last_sync_sent = t_sent
         self.last_sync_ns = t_sent
         self._produce_heartbeat(t_done)
+        if self._gc_paused and k % self.GC_EVERY_CYCLES == 0 \
+                and clock.now_ns() < deadline + self.period_ns // 2:
+            # the collector is off while cycling (gc.freeze moved everything older into the
+            # permanent generation): collect what the cycles left, in this cycle's slack
+            g0 = clock.now_ns()
+            gc.collect()
+            tm.gc.add(clock.now_ns() - g0)
         self.k = k + 1
         if rec is not None:
             if self.keep_trace:
@@ -300,6 +347,32 @@ class Controller:
             if self.on_cycle is not None:
                 self.on_cycle(self, rec)
         return rec
+
+    def _deadlines_missed(self, k: int, streak: int) -> None:
+        """``max_missed_in_row`` deadlines missed in a row: the machine cannot keep the
+        cycle; the drives would fall back on stale setpoints -> quick stop, saying why."""
+        c = self.timing.cpu_compute.summary_us()
+        self.quick_stop(k, (self.clock.now_ns() - self.t0) * 1e-9, "controller",
+                        "deadlines_missed",
+                        f"{streak} SYNC deadlines missed in a row (RPDOs after the next SYNC; "
+                        f"compute p99 {c['p99']:.0f} us of the {self.period_ns / 1e3:.0f} us "
+                        f"cycle): the machine cannot keep this cycle (longer sync_period, "
+                        f"SCHED_FIFO, a CPU of its own)")
+
+    def _check_budget(self, k: int) -> None:
+        """The start-up check: compute p99 over the first seconds against the period."""
+        vals = sorted(self.timing.startup)
+        self.timing.startup = None
+        p99 = vals[min(len(vals) - 1, int(0.99 * len(vals)))]
+        share = p99 / self.period_ns
+        if share > self.BUDGET_SHARE:
+            self.events.add(k, (self.clock.now_ns() - self.t0) * 1e-9, "controller",
+                            "cycle_budget",
+                            f"cycle budget tight: compute p99 {p99 / 1e3:.0f} us = "
+                            f"{100 * share:.0f} % of the {self.period_ns / 1e3:.0f} us period "
+                            f"over the first {self.BUDGET_CHECK_S:g} s (> "
+                            f"{100 * self.BUDGET_SHARE:.0f} %): expect missed deadlines",
+                            level=30)
 
     def _inputs_complete(self) -> bool:
         k = self.master.cycle
@@ -556,7 +629,7 @@ class Controller:
         after a fault."""
         if self.failure is not None:
             return EXIT_ERROR
-        if not any(e.reaction for e in self.events):
+        if not self.events.reactions:  # (counted: the event log keeps only the last ones)
             return EXIT_OK
         stopping = any(s.begin_cycle is not None for s in self.stops)
         if stopping and (self.phase is not Phase.STOPPED or
@@ -710,8 +783,8 @@ class Controller:
         robot group; the controller's tracker passes its setpoint through), else the
         tracker's."""
         st = self.app.status().track_state
-        if st is not None and self.phase is Phase.RUNNING:
-            return int(st)
+        if st is not None and self.phase is not Phase.ENABLING and self.phase is not Phase.IDLE:
+            return int(st)  # (also while stopping: the pass-through tracker stays SYNCED)
         return int(tr.state) if tr is not None else 0
 
     def _imfs(self, tr: Tracker | None) -> int:
@@ -743,6 +816,7 @@ class Controller:
             gc.collect()
             gc.freeze()
             gc.disable()
+            self._gc_paused = True
         if self.phase is Phase.IDLE or (self.k == 0 and rt):
             self.start()  # (again after the gc work: the first deadline is one period ahead)
         try:
@@ -766,10 +840,11 @@ class Controller:
                     break
         finally:
             if rt:
+                self._gc_paused = False
                 gc.enable()
                 gc.unfreeze()
-        if self.phase is Phase.RUNNING:
-            self.disable()
+        if self.phase in (Phase.RUNNING, Phase.ENABLING):
+            self.disable()  # (stopped while enabling too: no drive is left switched on)
         self.final_states()
         if self.failure is not None:
             raise self.failure
@@ -793,6 +868,8 @@ class Controller:
             if self.keep_trace:
                 self.trace.append(rec)
             self.k = k + 1
+            if self.on_cycle is not None:
+                self.on_cycle(self, rec)
 
 
 def _where(exc: BaseException) -> str:

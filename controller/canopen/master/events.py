@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import logging
+from collections import deque
+from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from enum import StrEnum
 
@@ -55,6 +57,8 @@ class EventKind(StrEnum):
     PLC_NMT = "plc_nmt"                  #: the node's NMT state changed by a command
     PLC_COB_ID_REFUSED = "plc_cob_id_refused"  #: a PDO COB-ID write refused
     PLC_TRIGGER_DROPPED = "plc_trigger_dropped"  #: trigger edges over the rate limit
+    DEADLINES_MISSED = "deadlines_missed"  #: max_missed_in_row SYNC deadlines missed in a row
+    CYCLE_BUDGET = "cycle_budget"        #: start-up: compute p99 above half the period
 
 
 @dataclass(frozen=True, slots=True)
@@ -76,10 +80,20 @@ class Event:
 
 
 class EventLog:
-    """The list of events of a run; each one is also logged."""
+    """The events of a run: the last ``limit`` kept (a run of weeks must not keep them all),
+    every one counted, logged and passed to the ``listeners`` (streaming telemetry)."""
 
-    def __init__(self) -> None:
-        self.events: list[Event] = []
+    #: events kept by default
+    LIMIT = 1000
+
+    def __init__(self, limit: int | None = LIMIT) -> None:
+        self.events: deque[Event] = deque(maxlen=limit)
+        #: events added in all
+        self.total = 0
+        #: events with a reaction / whose reaction was a quick stop, in all
+        self.reactions = 0
+        self.quick_stops = 0
+        self.listeners: list[Callable[[Event], None]] = []
 
     def add(self, cycle: int, t_s: float, source: str, kind: EventKind | str, detail: str,
             reaction: str = "", level: int = logging.WARNING) -> Event:
@@ -91,7 +105,14 @@ class EventLog:
                              "(controller.canopen.master.events)") from None
         e = Event(cycle, t_s, source, kind, detail, reaction)
         self.events.append(e)
+        self.total += 1
+        if reaction:
+            self.reactions += 1
+            if reaction.startswith("quick stop"):
+                self.quick_stops += 1
         log.log(level, "%s", e)
+        for listener in self.listeners:
+            listener(e)
         return e
 
     def of_kind(self, kind: EventKind | str) -> list[Event]:

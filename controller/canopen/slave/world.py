@@ -97,12 +97,15 @@ class SimWorld:
     """Simulated devices + the controller's transport (+ a candump-format bus log)."""
 
     def __init__(self, cfg: BusConfig, *, realtime: bool = False,
-                 present: Iterable[str] | None = None, bus_log: str | Path | None = None,
+                 present: Iterable[str] | None = None,
+                 bus_log: str | Path | can.Listener | None = None,
                  channel: str | None = None, record: bool = False,
                  spin_ns: int | None = None, inline: bool = False) -> None:
         """``realtime``: wall-clock time, the devices in a :class:`DeviceThread`; with
         ``inline`` too: the devices served in the controller's thread, paced in real time
-        (a :class:`SteppedWorld` on a :class:`RealtimeClock`)."""
+        (a :class:`SteppedWorld` on a :class:`RealtimeClock`).  ``bus_log``: a file name
+        (``can.Logger`` by its extension) or a listener (e.g. a rotating
+        :class:`~.io.rotating.BusLog`), stopped by :meth:`close`."""
         self.cfg = cfg
         self.realtime = realtime
         self.channel = channel or f"cantrack-sim-{os.getpid()}-{next(_channels)}"
@@ -115,7 +118,8 @@ class SimWorld:
             self.rack = DeviceRack.from_config(cfg, virtual_bus(self.channel), self.clock,
                                                present)
             if bus_log is not None:
-                self._logger = can.Logger(str(bus_log))
+                self._logger = bus_log if isinstance(bus_log, can.Listener) \
+                    else can.Logger(str(bus_log))
                 self._log_bus = virtual_bus(self.channel)
                 self._notifier = can.Notifier(self._log_bus, [_Renamed(self._logger)],
                                               timeout=0.05)
@@ -130,7 +134,8 @@ class SimWorld:
             self.rack = self.world.add(DeviceRack.from_config(cfg, self.world.new_bus(),
                                                               self.clock, present))
             if bus_log is not None:
-                self._logger = can.Logger(str(bus_log))
+                self._logger = bus_log if isinstance(bus_log, can.Listener) \
+                    else can.Logger(str(bus_log))
                 self.world.add(_LogEndpoint(self.world.new_bus(), self._logger))
             self.recorder = self.world.add(FrameRecorder(self.world.new_bus())) \
                 if record else None
