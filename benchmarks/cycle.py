@@ -279,7 +279,7 @@ def run_baseline(args, argv) -> dict:
     import subprocess
     base = Path(args.baseline).resolve()
     out = Path(tempfile.mkdtemp()) / "baseline.json"
-    opts = [a for a in (argv if argv is not None else sys.argv[1:])]
+    opts = list(argv if argv is not None else sys.argv[1:])
     drop = {"--baseline", "--json"}
     clean, skip = [], False
     for a in opts:

@@ -49,7 +49,8 @@ def _count(text: str) -> int:
         except ValueError:
             raise argparse.ArgumentTypeError(f"{text!r} is not a number of items") from None
         if not math.isfinite(f) or f != int(f):
-            raise argparse.ArgumentTypeError(f"{text!r} is not a whole number of items")
+            raise argparse.ArgumentTypeError(f"{text!r} is not a whole number of items") \
+                from None
         v = int(f)
     if v < 1:
         raise argparse.ArgumentTypeError(f"{text!r}: must be >= 1")

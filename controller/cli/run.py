@@ -137,7 +137,7 @@ class BootHeartbeat:
         #: the PDOs sent after each of the last SYNCs (bounded); every cycle is counted in
         #: ``sequences`` (COB-ID sequence -> cycles)
         self.cycles: deque[list[int]] = deque(maxlen=self.LAST)
-        self.sequences: dict[tuple[int, ...], int] = {}
+        self.sequences: dict[tuple, int] = {}
         self._current: list[int] | None = None
         if self.active:
             self.inner.send(self.cob, b"\x00")  # boot-up
@@ -286,8 +286,8 @@ def main(argv: list[str] | None = None, prog: str = "cantrack run") -> int:
                          end_cycle=cyc(args.duration))
     settings, cfg = canbus.bus_config_for(args, cfg)
     check_bus_load(cfg)  # before the bus is opened: a refusal leaves nothing to clean up
-    for w in apply_scheduling(args.fifo, args.cpu):
-        print(f"cantrack: warning: {w}", file=sys.stderr)
+    for warning in apply_scheduling(args.fifo, args.cpu):
+        print(f"cantrack: warning: {warning}", file=sys.stderr)
     bus = canbus.open_configured(settings)
     status = StatusLine(args.quiet, every_s=1.0, every_tty_s=0.2)
     changes = _Changes()

@@ -296,16 +296,17 @@ class PickPlace:
         if item is self.current:
             self.current = None
         r = self.robot
-        if r is not None:
+        if r is not None and item.entry_id is not None:
             rec = r.records.get(item.entry_id)
             if rec is not None:
                 item.model = rec.as_dict()
         # bounded: the oldest finished items, their entries and model records go
         while len(self.done_items) > self.history:
             old = self.done_items.popleft()
-            self._by_entry.pop(old.entry_id, None)
-            if r is not None:
-                r.records.pop(old.entry_id, None)
+            if old.entry_id is not None:
+                self._by_entry.pop(old.entry_id, None)
+                if r is not None:
+                    r.records.pop(old.entry_id, None)
         if self.on_item is not None:
             self.on_item(item)
 

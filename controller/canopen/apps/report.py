@@ -12,7 +12,7 @@ import math
 from collections.abc import Sequence
 from dataclasses import asdict
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -167,7 +167,7 @@ class Telemetry:
             self.out.write(d, t_s=rec.t_s)
 
     def item(self, it: Item, t_s: float | None = None) -> None:
-        d = {"type": "item"}
+        d: dict[str, Any] = {"type": "item"}
         d.update(asdict(it))
         d["t_s"] = t_s if t_s is not None else self.ctl.k * self.ctl.cfg.period_s
         self.out.write(d, t_s=d["t_s"])
@@ -223,10 +223,7 @@ def write_telemetry(path: str | Path, ctl: Controller, items: Sequence[Item] = (
     """The whole telemetry of a finished run at once (its ``trace``, events, items);
     long-running commands stream it with :class:`Telemetry` instead."""
     with open(path, "w", encoding="utf-8") as f:
-        head = {"type": "run", "config": ctl.cfg.file, "period_s": ctl.cfg.period_s,
-                "axes": [a.axis for a in ctl.axes], "bus_load": ctl.bus_load.load,
-                "bits_per_cycle": ctl.bus_load.bits_per_cycle, "cycles": ctl.k,
-                "realtime": bool(ctl.clock.realtime), "timing": timing_summary(ctl)}
+        head = run_header(ctl, {"cycles": ctl.k, "timing": timing_summary(ctl)})
         head.update(extra or {})
         f.write(json.dumps(json_safe(head), allow_nan=False) + "\n")
         for rec in ctl.trace:

@@ -26,7 +26,7 @@ import re
 import time
 from datetime import datetime
 from pathlib import Path
-from typing import Any
+from typing import Any, TextIO
 
 import can
 
@@ -173,7 +173,7 @@ class JsonLines:
         self.header = header
         self.rollover_count = 0
         self.lines = 0
-        self._file = None
+        self._file: TextIO | None = None
         self._open()
 
     def _open(self) -> None:
@@ -186,6 +186,7 @@ class JsonLines:
 
     def _write_line(self, record: dict[str, Any]) -> None:
         line = json.dumps(json_safe(record), allow_nan=False, default=str) + "\n"
+        assert self._file is not None
         self._file.write(line)
         self._size += len(line)
         self.lines += 1
@@ -213,6 +214,7 @@ class JsonLines:
 
     def rotate(self) -> None:
         """Close this file, rename it the python-can way, start a new one, keep ``keep``."""
+        assert self._file is not None
         self._file.close()
         os.replace(self.path, rotated_name(self.path, self.rollover_count))
         self.rollover_count += 1

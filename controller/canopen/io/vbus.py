@@ -37,7 +37,7 @@ class FastVirtualBus(_virtual.VirtualBus):
         fast: queue.SimpleQueue = queue.SimpleQueue()
         with _virtual.channels_lock:
             i = next(i for i, q in enumerate(self.channel) if q is self.queue)
-            self.channel[i] = fast
+            self.channel[i] = fast  # type: ignore[call-overload]  # (SimpleQueue: same API)
         self.queue = fast  # type: ignore[assignment]
 
     def send(self, msg: can.Message, timeout: float | None = None) -> None:

@@ -361,7 +361,7 @@ class Controller:
 
     def _check_budget(self, k: int) -> None:
         """The start-up check: compute p99 over the first seconds against the period."""
-        vals = sorted(self.timing.startup)
+        vals = sorted(self.timing.startup or ())
         self.timing.startup = None
         p99 = vals[min(len(vals) - 1, int(0.99 * len(vals)))]
         share = p99 / self.period_ns

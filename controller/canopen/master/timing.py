@@ -31,8 +31,9 @@ class Histogram:
         self.counts = array("q", bytes(8 * BUCKETS))
         self.n = 0
         self.total = 0
-        self.min: int | None = None
-        self.max: int | None = None
+        #: exact extremes (0 while empty: see ``n``)
+        self.min = 0
+        self.max = 0
 
     def add(self, value_ns: int) -> None:
         if value_ns <= LOW_NS:
@@ -44,9 +45,9 @@ class Histogram:
         self.counts[i] += 1
         self.n += 1
         self.total += value_ns
-        if self.max is None or value_ns > self.max:
+        if self.n == 1 or value_ns > self.max:
             self.max = value_ns
-        if self.min is None or value_ns < self.min:
+        if self.n == 1 or value_ns < self.min:
             self.min = value_ns
 
     # (``append`` so that code written for the per-cycle arrays keeps working)
@@ -67,7 +68,7 @@ class Histogram:
             seen += c
             if seen > rank:
                 if i == 0:
-                    return float(min(self.min, LOW_NS)) if self.min is not None else 0.0
+                    return float(min(self.min, LOW_NS))
                 lo = LOW_NS * math.exp((i - 1) * _LOG_STEP)
                 v = lo * math.sqrt(1.0 + STEP)
                 return float(min(max(v, self.min), self.max))
