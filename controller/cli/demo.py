@@ -118,6 +118,8 @@ def main(argv: list[str] | None = None, prog: str = "cantrack demo") -> int:
     rotation = dict(max_age_s=args.file_time, keep=args.keep)
     bus_log = BusLog(out / "bus.log", args.file_size, **rotation)
     wall0 = time.perf_counter()
+    end, error = "end", None
+    plc = None
     with StopSignals() as stop, SimWorld(cfg, realtime=args.realtime, bus_log=bus_log) as world:
         ctl = Controller(cfg, world.transport, app, on_cycle=on_cycle, keep_trace=False)
         tel = Telemetry(out / "telemetry.jsonl", ctl, max_bytes=args.file_size,

@@ -48,7 +48,7 @@ from ..canopen.io.transport import RealtimeTransport
 from ..canopen.master.app import ConveyorFollow
 from ..canopen.master.cycle import Controller
 from ..canopen.master.plc_node import attach_plc_node, plc_summary
-from ..errors import CanError, ConfigError
+from ..errors import ConfigError
 from ..tracking import Mode
 from .common import StatusLine, add_bus_arguments
 
