@@ -186,6 +186,12 @@ def rig_run(hil_rig, rig_cfg, check_before, recorder, rig_dir) -> RigRun:
         t = rig_cfg.tracking.timeouts if rig_cfg.tracking is not None else None
         budget = hil_rig.run_duration_s + 120 + (
             t.boot_up_s + t.enable_s + 10 * t.sdo_s if t is not None else 60)
+        ready_file, ready = out / "run-ready.json", {}
+        try:  # (read while the run is on: it removes its ready-file when it ends)
+            wait_file(ready_file, [run], 60)
+            ready = json.loads(ready_file.read_text())
+        except (RuntimeError, OSError, ValueError):
+            pass  # (no ready-file: the report and the run's log say why)
         run_rc = run.wait(timeout=budget)
     finally:
         if run is not None and run.poll() is None:
@@ -197,9 +203,7 @@ def rig_run(hil_rig, rig_cfg, check_before, recorder, rig_dir) -> RigRun:
     assert report.is_file(), (f"cantrack run (exit {run_rc}) wrote no report\n"
                               f"{_tail(out / 'run.out')}")
     frames = classify_capture(recorder.path, decoder=decoder, tshark=tshark)
-    ready = out / "run-ready.json"
-    return RigRun(out, rig_cfg, run_rc, rec_rc,
-                  json.loads(ready.read_text()) if ready.is_file() else {},
+    return RigRun(out, rig_cfg, run_rc, rec_rc, ready,
                   json.loads(report.read_text()), frames, decoder)
 
 
