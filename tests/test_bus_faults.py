@@ -47,19 +47,12 @@ class Intruder:
 
 
 @pytest.fixture
-def make(tmp_path):
-    worlds = []
-
+def make(booted_follow):
+    """(world, controller, intruder): ``booted_follow``'s bus with an intruder on it."""
     def _make(text: str | None = None, end_cycle: int = 600, **kw):
-        cfg = load_bus_config(bus_yml(tmp_path, text=text)) if text else load(tmp_path)
-        app = ConveyorFollow(10, None, OFFSET, end_cycle=end_cycle)
-        world, ctl = stepped(cfg, app, **kw)
-        worlds.append(world)
-        ctl.boot()
+        world, ctl = booted_follow(text, end_cycle, **kw)
         return world, ctl, Intruder(world)
-    yield _make
-    for w in worlds:
-        w.close()
+    return _make
 
 
 def enabled(world) -> list[str]:

@@ -11,11 +11,9 @@ import math
 
 import pytest
 
-from controller.canopen.config import load_bus_config
-from controller.canopen.master.app import ConveyorFollow
 from controller.canopen.master.cycle import EnableError, Phase
 from controller.canopen.protocol.cia402 import State
-from controller.canopen.testing import bus_yml, bus_yml_text, load, stepped
+from controller.canopen.testing import bus_yml_text
 from controller.tracking import TrackState
 
 OFFSET = (420.0, 30.0, 0.0)
@@ -23,19 +21,8 @@ T_FAULT = 0.5  # s (tracking starts at about 0.04 s, SYNCED at about 0.3 s)
 
 
 @pytest.fixture
-def make(tmp_path):
-    worlds = []
-
-    def _make(text: str | None = None, end_cycle: int = 600, **kw):
-        cfg = load_bus_config(bus_yml(tmp_path, text=text)) if text else load(tmp_path)
-        app = ConveyorFollow(10, None, OFFSET, end_cycle=end_cycle)
-        world, ctl = stepped(cfg, app, **kw)
-        worlds.append(world)
-        ctl.boot()
-        return world, ctl
-    yield _make
-    for w in worlds:
-        w.close()
+def make(booted_follow):
+    return booted_follow
 
 
 def reactions(ctl):

@@ -33,17 +33,14 @@ How it is put together (the upstream build systems' quirks with a current gcc/cm
 from __future__ import annotations
 
 import fcntl
-import hashlib
-import os
 import shutil
-import subprocess
-import tarfile
 import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from .vendor import VENDOR_ENV, VendorError, cache_dir, vendor_dir
+from .vendor import (VENDOR_ENV, VendorError, cache_dir, content_key, find_archives, run_logged,
+                     unpack, vendor_dir)
 
 ARCHIVES = ("Reference-FMUs", "FMUComplianceChecker", "fmi-library", "zlib", "sundials")
 TOOLS = ("gcc", "cmake", "make")
@@ -72,14 +69,9 @@ class FmiTools:
     build_s: float = 0.0
 
 
-def _archive(directory: Path, name: str) -> Path | None:
-    found = sorted(directory.glob(f"{name}-*.tar.gz"))
-    return found[-1] if found else None
-
-
 def archives(directory: Path | None = None) -> dict[str, Path | None]:
-    d = directory if directory is not None else vendor_dir()
-    return {n: _archive(d, n) for n in ARCHIVES}
+    """The importers' archives."""
+    return find_archives(ARCHIVES, directory)
 
 
 def tools_available(directory: Path | None = None) -> tuple[bool, str]:
@@ -100,30 +92,8 @@ def tools_available(directory: Path | None = None) -> tuple[bool, str]:
     return True, ", ".join(p.name for p in archives(d).values() if p is not None)
 
 
-def _key(paths: list[Path]) -> str:
-    """Content hash of the archives (the cache directory's name)."""
-    h = hashlib.sha256()
-    for p in paths:
-        h.update(p.name.encode() + b"\0" + hashlib.sha256(p.read_bytes()).digest())
-    return h.hexdigest()[:16]
-
-
-def _unpack(archive: Path, into: Path) -> None:
-    into.mkdir(parents=True, exist_ok=True)
-    with tarfile.open(archive) as tf:
-        tf.extractall(into, filter="tar")
-
-
-def _run(args: list[str], cwd: Path, log: Path, env: dict | None = None) -> None:
-    with log.open("ab") as f:
-        f.write(f"\n$ {' '.join(args)}  (in {cwd})\n".encode())
-        f.flush()
-        r = subprocess.run(args, cwd=cwd, stdout=f, stderr=subprocess.STDOUT, check=False,
-                           env={**os.environ, **(env or {})})
-    if r.returncode != 0:
-        tail = log.read_text(errors="replace")[-3000:]
-        raise VendorError(f"building the independent FMI importers failed: {' '.join(args)} "
-                          f"in {cwd} exited with {r.returncode}\n{tail}")
+def _run(args: list[str], cwd: Path, log: Path, env: dict[str, str] | None = None) -> None:
+    run_logged(args, cwd, log, "the independent FMI importers", env)
 
 
 def _source_root(into: Path) -> Path:
@@ -205,7 +175,7 @@ def build_tools(directory: Path | None = None, cache: Path | None = None) -> Fmi
     versions = tuple(p.name.removesuffix(".tar.gz") for p in paths)
     base = cache if cache is not None else cache_dir()
     base.mkdir(parents=True, exist_ok=True)
-    root = base / f"fmi-{_key(paths)}"
+    root = base / f"fmi-{content_key(paths)}"
     with (base / ".lock-fmi").open("w") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)  # one build at a time (parallel test sessions)
         if (root / "done").is_file():
@@ -218,7 +188,7 @@ def build_tools(directory: Path | None = None, cache: Path | None = None) -> Fmi
             for name in ARCHIVES:
                 archive = found[name]
                 assert archive is not None
-                _unpack(archive, work / "src" / name)
+                unpack(archive, work / "src" / name)
                 src[name] = _source_root(work / "src" / name)
             _build_fmusim(src, work, log)
             _build_checker(src, work, log)

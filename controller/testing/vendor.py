@@ -91,14 +91,21 @@ def cache_dir() -> Path:
     return base / "cantrack-vendor"
 
 
-def _archive(directory: Path, name: str) -> Path | None:
+def find_archive(directory: Path, name: str) -> Path | None:
+    """The newest ``<name>-*.tar.gz`` in ``directory`` (by name), or None."""
     found = sorted(directory.glob(f"{name}-*.tar.gz"))
     return found[-1] if found else None
 
 
-def archives(directory: Path | None = None) -> dict[str, Path | None]:
+def find_archives(names: tuple[str, ...], directory: Path | None = None) -> dict[str, Path | None]:
+    """Each of ``names`` to its archive in ``directory`` (default :func:`vendor_dir`)."""
     d = directory if directory is not None else vendor_dir()
-    return {n: _archive(d, n) for n in ARCHIVES}
+    return {n: find_archive(d, n) for n in names}
+
+
+def archives(directory: Path | None = None) -> dict[str, Path | None]:
+    """The CANopen stack's archives."""
+    return find_archives(ARCHIVES, directory)
 
 
 def stack_available(directory: Path | None = None) -> tuple[bool, str]:
@@ -115,7 +122,8 @@ def stack_available(directory: Path | None = None) -> tuple[bool, str]:
     return True, ", ".join(p.name for p in archives(d).values() if p is not None)
 
 
-def _key(paths: list[Path]) -> str:
+def content_key(paths: list[Path]) -> str:
+    """Content hash of the archives (the name of their build's cache directory)."""
     h = hashlib.sha256()
     for p in paths:
         h.update(p.name.encode())
@@ -130,18 +138,26 @@ def stack_at(root: Path, versions: tuple[str, ...]) -> CanopenStack:
                         demo / "demoLinuxDevice", demo / "demoDevice.eds", versions)
 
 
-def _make(args: list[str], cwd: Path, log: Path) -> None:
+def run_logged(args: list[str], cwd: Path, log: Path, what: str,
+               env: dict[str, str] | None = None) -> None:
+    """Run one build step with its output appended to ``log``; a failure is a
+    :class:`VendorError` naming ``what`` was being built, the command and the log's tail."""
     with log.open("ab") as f:
         f.write(f"\n$ {' '.join(args)}  (in {cwd})\n".encode())
         f.flush()
-        r = subprocess.run(args, cwd=cwd, stdout=f, stderr=subprocess.STDOUT, check=False)
+        r = subprocess.run(args, cwd=cwd, stdout=f, stderr=subprocess.STDOUT, check=False,
+                           env={**os.environ, **(env or {})})
     if r.returncode != 0:
         tail = log.read_text(errors="replace")[-3000:]
-        raise VendorError(f"building the independent CANopen stack failed: {' '.join(args)} "
+        raise VendorError(f"building {what} failed: {' '.join(args)} "
                           f"in {cwd} exited with {r.returncode}\n{tail}")
 
 
-def _unpack(archive: Path, into: Path, strip_top: bool) -> None:
+def _make(args: list[str], cwd: Path, log: Path) -> None:
+    run_logged(args, cwd, log, "the independent CANopen stack")
+
+
+def unpack(archive: Path, into: Path, strip_top: bool = False) -> None:
     """Unpack ``archive`` into ``into`` (without its top-level folder if ``strip_top``)."""
     into.mkdir(parents=True, exist_ok=True)
     with tarfile.open(archive) as tf:
@@ -165,7 +181,7 @@ def build_stack(directory: Path | None = None, cache: Path | None = None) -> Can
     versions = tuple(p.name.removesuffix(".tar.gz") for p in paths)
     base = cache if cache is not None else cache_dir()
     base.mkdir(parents=True, exist_ok=True)
-    root = base / f"canopen-{_key(paths)}"
+    root = base / f"canopen-{content_key(paths)}"
     stack = stack_at(root, versions)
     with (base / ".lock").open("w") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)  # one build at a time (parallel test sessions)
@@ -180,7 +196,7 @@ def build_stack(directory: Path | None = None, cache: Path | None = None) -> Can
                                         ("CANopenDemo", work, False)):
                 archive = found[name]
                 assert archive is not None
-                _unpack(archive, target, strip)
+                unpack(archive, target, strip)
             _make(["make"], linux, log)
             _make(["make", "-C", "cocomm"], linux, log)
             demo = work / "CANopenDemo" / "demo"

@@ -278,14 +278,11 @@ class SteppedWorld:
         self.endpoints.clear()
 
 
-class SteppedTransport:
-    """The controller's transport inside a :class:`SteppedWorld`."""
+class PortTransport:
+    """What the stepped and the real-time transport share: frames go out and in through one
+    :class:`Port`; they differ only in how time passes (``run_until``)."""
 
-    def __init__(self, world: SteppedWorld) -> None:
-        self.world = world
-        self.clock = world.clock
-        self.port = Port(world.new_bus(), world.clock)
-        world.add(self.port)
+    port: Port
 
     def send(self, can_id: int, data: bytes | bytearray) -> None:
         self.port.send(can_id, data)
@@ -298,6 +295,16 @@ class SteppedTransport:
 
     def subscribe_errors(self, callback: Callable[[can.Message], None]) -> None:
         self.port.subscribe_errors(callback)
+
+
+class SteppedTransport(PortTransport):
+    """The controller's transport inside a :class:`SteppedWorld`."""
+
+    def __init__(self, world: SteppedWorld) -> None:
+        self.world = world
+        self.clock = world.clock
+        self.port = Port(world.new_bus(), world.clock)
+        world.add(self.port)
 
     def run_until(self, deadline_ns: int, done: Callable[[], bool] | None = None,
                   precise: bool = False) -> bool:
@@ -307,7 +314,7 @@ class SteppedTransport:
         pass  # the world closes the bus
 
 
-class RealtimeTransport:
+class RealtimeTransport(PortTransport):
     """The controller's transport on a real bus (or a virtual one shared with threads)."""
 
     def __init__(self, bus: can.BusABC, clock: RealtimeClock | None = None,
@@ -315,18 +322,6 @@ class RealtimeTransport:
         self.clock = clock if clock is not None else RealtimeClock()
         self.port = Port(bus, self.clock)
         self.spin_ns = spin_ns
-
-    def send(self, can_id: int, data: bytes | bytearray) -> None:
-        self.port.send(can_id, data)
-
-    def subscribe(self, can_id: int, callback: Callback) -> None:
-        self.port.subscribe(can_id, callback)
-
-    def unsubscribe(self, can_id: int, callback: Callback | None = None) -> None:
-        self.port.unsubscribe(can_id, callback)
-
-    def subscribe_errors(self, callback: Callable[[can.Message], None]) -> None:
-        self.port.subscribe_errors(callback)
 
     def run_until(self, deadline_ns: int, done: Callable[[], bool] | None = None,
                   precise: bool = False) -> bool:
