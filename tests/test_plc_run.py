@@ -119,7 +119,7 @@ def test_run_with_a_plc_section_is_commanded_by_the_plc(tmp_path):
     seen = json.loads(seen_file.read_text())
     assert "error" not in seen, (seen, out.stdout, out.stderr)
     assert out.returncode == 0, out.stdout + out.stderr
-    assert "plc node: id 1, SDO 601h/581h, RPDO1 201h, TPDO1 181h, TPDO2 281h, TPDO3 381h; " \
+    assert "plc node: id 1, SDO 601h/581h, RPDO1 201h, RPDO2 301h, TPDO1 181h, TPDO2 281h, TPDO3 381h; " \
         "commander node 32 (heartbeat 600 ms, on loss: desync)" in out.stderr
     assert seen["access"] == 7 and seen["name"] == "cantrack controller"
     assert seen["tpdo1_state"] in (1, 2) and seen["items"] == 3

@@ -14,7 +14,8 @@ as a script (:func:`orchestrate`):
    consumer time 3 s, reaction ``desync``), ``--engage-at`` not given: the PLC engages;
 3. cocomm through canopend 32: 2011h until 7, 1008h (segmented), engage 2005h = 5, a value
    refused (06090030h), COB-ID writes (restricted 06090030h, a drive's RPDO 08000000h), a
-   configuration object (08000020h), NMT pre-operational (08000022h), start again;
+   configuration object (08000020h), NMT pre-operational (08000022h), start again; the
+   item types (2014h, 2015h:2 written and read back, 2015h:0 read-only);
 4. cocomm through canopend 33 while 32 is silenced (its 1017h = 0): the commander's heartbeat
    is lost -> the controller de-syncs (event) and every motion write is refused (08000021h);
 5. SIGTERM to the run: exit 3 (a fault was seen and handled: the commander's heartbeat
@@ -163,6 +164,11 @@ def orchestrate(out: Path, channel: str, canopend: Path, cocomm: Path) -> int:
         plc(f"{MASTER} write 0x2005 0 u8 0", "disengage in preop")
         plc(f"{MASTER} start", "nmt start")
         plc.until(f"{MASTER} read 0x2011 0 u8", "7", 30, "access again")
+        plc(f"{MASTER} write 0x2014 0 u8 3", "trigger type")  # item types (2014h, 2015h)
+        plc(f"{MASTER} read 0x2014 0 u8", "trigger type read")
+        plc(f"{MASTER} write 0x2015 2 u32 5", "tracked types")
+        plc(f"{MASTER} read 0x2015 2 u32", "tracked types read")
+        plc(f"{MASTER} write 0x2015 0 u8 8", "tracked types sub0")
         # the commander falls silent; another node tries
         other = Gateway(canopend, cocomm, channel, OTHER, out)
         other.ready()
@@ -171,6 +177,7 @@ def orchestrate(out: Path, channel: str, canopend: Path, cocomm: Path) -> int:
         other(f"{MASTER} read 0x2000 0 u8", "state after loss")
         other(f"{MASTER} write 0x2005 0 u8 5", "engage by another node")
         other(f"{MASTER} write 0x2004 0 u8 1", "trigger by another node")
+        other(f"{MASTER} write 0x2015 1 u32 0", "types by another node")
         other(f"{MASTER} read 0x2012 0 u32", "refused count")
         run.send_signal(signal.SIGTERM)
         res["run_rc"] = run.wait(timeout=60)
@@ -274,6 +281,9 @@ def test_refusals_seen_by_cocomm(session):
     assert _abort(c["config owned"]) == "0x08000020"
     assert _abort(c["disengage in preop"]) == "0x08000022"
     assert c["access preop"]["out"] == "6" and c["access again"]["out"] == "7"
+    assert c["trigger type"]["rc"] == 0 and c["trigger type read"]["out"] == "3"
+    assert c["tracked types"]["rc"] == 0 and c["tracked types read"]["out"] == "5"
+    assert _abort(c["tracked types sub0"]) == "0x06010002"  # read-only
 
 
 def test_commander_lost_desyncs_and_other_nodes_are_refused(session):
@@ -282,6 +292,7 @@ def test_commander_lost_desyncs_and_other_nodes_are_refused(session):
     assert c["state after loss"]["out"] in ("3", "0")  # DESYNCING or already OFF
     assert _abort(c["engage by another node"]) == "0x08000021"
     assert _abort(c["trigger by another node"]) == "0x08000021"
+    assert _abort(c["types by another node"]) == "0x08000021"
     assert int(c["refused count"]["out"]) >= 3  # (pre-op + the two above)
     kinds = [e["kind"] for e in session["report"]["events"]]
     assert "plc_commander_lost" in kinds and "plc_no_commander" in kinds

@@ -45,7 +45,10 @@ class _JobApp:
     def engage(self, ctl: Controller, mode: Mode) -> bool:
         return True  # (the jobs, not the tracker, move the axes: a PLC command is ignored)
 
-    def trigger(self, t_ns: int) -> bool:
+    def trigger(self, t_ns: int, item_type: int = 0) -> bool:
+        return False
+
+    def track_types(self, types: frozenset[int] | None) -> bool:
         return False
 
 

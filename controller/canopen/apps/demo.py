@@ -172,10 +172,12 @@ class PhotoEye:
         """Items whose edge has been reported so far (PLC triggers included)."""
         return self._detected
 
-    def trigger(self, t_edge_ns: int, lateral: float = 0.0, angle: float = 0.0) -> Item:
+    def trigger(self, t_edge_ns: int, lateral: float = 0.0, angle: float = 0.0,
+                item_type: int = 0) -> Item:
         """An edge reported from outside (the PLC's trigger input, 2004h of the controller
-        node): a new item at the photo-eye at ``t_edge_ns``, on the belt's centre line."""
-        item = Item(self._count, int(t_edge_ns), lateral, angle)
+        node, with the type in 2014h): a new item of ``item_type`` at the photo-eye at
+        ``t_edge_ns``, on the belt's centre line."""
+        item = Item(self._count, int(t_edge_ns), lateral, angle, item_type=item_type)
         self._count += 1
         self._extra.append(item)
         return item
@@ -230,6 +232,9 @@ class PickPlace:
     _end_cycle: int | None = None
     _drops_unreported: int = 0
     _drop_reported: float | None = None
+    #: the tracked types a PLC set before the start (2015h), over .tracking.items
+    _types: frozenset[int] | None = None
+    _types_set: bool = False
 
     @property
     def imfs(self) -> int:
@@ -267,8 +272,9 @@ class PickPlace:
                                 motion_limits=MotionLimits(
                                     tp.sync_trans.vel, tp.sync_trans.acc, tp.sync_trans.jerk,
                                     tp.sync_rot.vel, tp.sync_rot.acc, tp.sync_rot.jerk))
-        if ctl.cfg.tracking.track_types is not None:
-            self.robot.track_types(self.frame, ctl.cfg.tracking.track_types)
+        types = self._types if self._types_set else ctl.cfg.tracking.track_types
+        if types is not None:
+            self.robot.track_types(self.frame, types)
         self._prev = sp
         # the controller's tracker passes the robot's setpoint through (SYNCED, absolute);
         # the robot group limits its own motions, so the master limits are the robot's
@@ -393,6 +399,8 @@ class PickPlace:
             elif ev_item is not None and ev.kind == "synchronized" \
                     and ev_item.synced_cycle is None:
                 ev_item.synced_cycle = cycle
+            if ev.kind == "item_ignored" and ev_item is not None:
+                self._finish_item(ev_item, "ignored", ev.message)
             if ev.kind == "item_missed" and ev.item in self._by_entry:
                 item = self._by_entry[ev.item]
                 self._finish_item(item, "missed", f"left the window ({ev.code})")
@@ -451,12 +459,27 @@ class PickPlace:
             self.robot.stop()
         return True
 
-    def trigger(self, t_ns: int) -> bool:
-        """A PLC's item trigger: an item edge of the photo-eye (counted once the cycle takes
-        the item in)."""
+    def trigger(self, t_ns: int, item_type: int = 0) -> bool:
+        """A PLC's item trigger: an item edge of the photo-eye, an item of ``item_type``
+        (counted once the cycle takes the item in)."""
         if self.eye is None:
             return False
-        self.eye.trigger(t_ns)
+        self.eye.trigger(t_ns, item_type=item_type)
+        return True
+
+    def track_types(self, types: frozenset[int] | None) -> bool:
+        """A PLC's tracked item types (2015h): the robot tracks only ``types`` on the belt
+        from its next update (None: every type); the waiting items of other types are
+        ignored now, the one being approached or followed is still picked."""
+        if self.robot is not None and self.frame is not None:
+            self.robot.track_types(self.frame, types)
+        else:
+            self._types, self._types_set = types, True
+        if types is not None:
+            for item in list(self._by_entry.values()):
+                if item.outcome == "pending" and item is not self.current \
+                        and item.item_type not in types:
+                    self._finish_item(item, "ignored", f"type {item.item_type} not tracked")
         return True
 
     def status(self) -> AppStatus:
@@ -464,7 +487,7 @@ class PickPlace:
         return AppStatus(self.track_state if self.robot is not None else None,
                          Imfs(self.imfs) if self.robot is not None else None,
                          self.eye.detected if self.eye is not None else None, self.missed,
-                         self.triggers_dropped)
+                         self.triggers_dropped, self.ignored)
 
     def master_lost(self, ctl: Controller, cycle: int) -> None:
         if self.current is not None and self.step in (Step.APPROACH, Step.FOLLOW):

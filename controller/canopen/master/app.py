@@ -47,13 +47,16 @@ class AppStatus:
     None: the controller's tracker is the one (its state is reported).  ``items_detected``:
     items seen by the application's item sensor so far (None: it has none; the PLC node then
     counts its own triggers); ``items_missed``: items missed so far; ``triggers_dropped``:
-    item triggers dropped by a full trigger buffer (``.plc.trigger_overflow``)."""
+    item triggers dropped by a full trigger buffer (``.plc.trigger_overflow``);
+    ``items_ignored``: items of a type that is not tracked."""
 
     track_state: TrackState | None = None
     imfs: Imfs | None = None
     items_detected: int | None = None
     items_missed: int = 0
     triggers_dropped: int = 0
+    #: items of a type the application does not track (2016h)
+    items_ignored: int = 0
 
 
 #: the status of an application without tracking of its own and without items
@@ -80,9 +83,14 @@ class Application(Protocol):
         """A PLC's engage command (2005h): True if the application took it, False to let the
         controller's tracker engage (``mode`` 3/5) or disengage (0)."""
 
-    def trigger(self, t_ns: int) -> bool:
-        """A PLC's item trigger at ``t_ns`` [ns, controller clock]: True if the application
-        took it as an item edge, False if it has no item sensor."""
+    def trigger(self, t_ns: int, item_type: int = 0) -> bool:
+        """A PLC's item trigger at ``t_ns`` [ns, controller clock] for an item of
+        ``item_type`` (2014h): True if the application took it as an item edge, False if it
+        has no item sensor."""
+
+    def track_types(self, types: frozenset[int] | None) -> bool:
+        """A PLC's tracked item types (2015h; None: every type): True if the application
+        tracks only those from now on, False if it has no items to classify."""
 
 
 class ConveyorFollow:
@@ -125,5 +133,8 @@ class ConveyorFollow:
     def engage(self, ctl: Controller, mode: Mode) -> bool:
         return False
 
-    def trigger(self, t_ns: int) -> bool:
+    def trigger(self, t_ns: int, item_type: int = 0) -> bool:
+        return False
+
+    def track_types(self, types: frozenset[int] | None) -> bool:
         return False

@@ -54,8 +54,15 @@ class ControllerHost:
         else:
             tr.engage(mode)
 
-    def trigger(self, t_ns: int) -> None:
-        self.app.trigger(t_ns)  # (False: no item sensor; the node counts its triggers)
+    def trigger(self, t_ns: int, item_type: int) -> None:
+        self.app.trigger(t_ns, item_type)  # (False: no item sensor; the node counts them)
+
+    def track_types(self) -> frozenset[int] | None:
+        tc = self.ctl.cfg.tracking
+        return tc.track_types if tc is not None else None
+
+    def set_track_types(self, types: frozenset[int] | None) -> None:
+        self.app.track_types(types)  # (False: no items to classify; 2015h keeps the value)
 
     def _t(self) -> tuple[int, float]:
         ctl = self.ctl
@@ -85,7 +92,7 @@ class ControllerHost:
             items=app.items_detected if app.items_detected is not None else node.triggers,
             missed=app.items_missed, tracking_error_mm=rec.tracking_error,
             belt_vel_mm_s=rec.belt_vel if rec.belt_vel is not None else 0.0,
-            triggers_dropped=app.triggers_dropped)
+            triggers_dropped=app.triggers_dropped, items_ignored=app.items_ignored)
 
 
 def attach_plc_node(ctl: Controller, app: Application | None = None,

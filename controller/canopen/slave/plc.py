@@ -1,15 +1,16 @@
 """The controller itself as a CANopen node (eds/cantrack-controller.eds) that a PLC commands.
 
 :class:`PlcNode` is a :class:`~.engine.SlaveEngine` on the controller's transport (no second
-bus, no thread): SDO server (expedited and segmented: 1008h-100Ah), TPDOs, RPDO1, NMT slave,
+bus, no thread): SDO server (expedited and segmented: 1008h-100Ah), TPDOs, RPDO1-2, NMT slave,
 heartbeat consumer of the commander.  It knows the controller only as a :class:`PlcHost`
 (``master.plc_node`` binds it to a running controller).  The controller's cycle drives it
 (:meth:`PlcNode.cycle`): once per cycle the node takes the cycle's :class:`PlcStatus` into
-2000h-2008h and 2011h-2013h, runs its timers (event TPDOs, the commander's heartbeat) and
+2000h-2008h, 2011h-2013h and 2016h, runs its timers (event TPDOs, the commander's heartbeat) and
 its SYNC (the controller's own: TPDO types 0-240).
 
 The commanding-node contract (docs/plc.md).  The motion-relevant objects -- 2004h trigger,
-2005h engage, 2010h sync limits -- are written, by SDO or RPDO, only
+2005h engage, 2010h sync limits, 2014h trigger item type, 2015h tracked item types -- are
+written, by SDO or RPDO, only
 
 1. in NMT OPERATIONAL (the node enters it when the controller's cycle starts; a PLC may
    stop it or put it in PRE-OPERATIONAL with NMT): else SDO abort 08000022h;
@@ -32,6 +33,12 @@ and here against the bus (08000000h): the SYNC and TIME IDs, every EMCY ID (081h
 default PDO IDs of the bus's nodes (except the commander's PDOs pointed our way: its TPDOs
 for our RPDOs, its RPDOs for our TPDOs), the configured PDOs of the slaves, and the node's
 other PDOs.
+
+Item types (docs/spec/conveyor-extensions.md#3): each trigger edge gives its item the type
+in 2014h at that moment (RPDO2 carries 2014h and 2004h: the type applies to the edge of the
+same frame, whatever the order of the mapping); 2015h:1-8 is the set of tracked types as
+256 bits (bit b of sub s: type 32 (s - 1) + b), loaded from ``.tracking.items.track_types``
+at the start; a write changes the application's set at once (all bits set: every type).
 
 Trigger edges (2004h bit 0 rising) are bounded: at most ``trigger_rate_max`` per second
 (over the last second); more are dropped, counted in 2013h and reported.  A full trigger
@@ -67,10 +74,29 @@ from .engine import ABORT_LOCAL_CONTROL, Nmt, SlaveBus, SlaveEngine
 EDS = data_path("eds", "cantrack-controller.eds")
 
 #: objects whose writes command motion (the contract applies)
-MOTION_OBJECTS = frozenset({0x2004, 0x2005, 0x2010})
+MOTION_OBJECTS = frozenset({0x2004, 0x2005, 0x2010, 0x2014, 0x2015})
 #: communication objects a PLC may not write (the bus configuration sets them)
 CONFIG_OWNED = frozenset({0x1005, 0x1006, 0x1014, 0x1015, 0x1016, 0x1017, 0x1019})
 ENGAGE_VALUES = (int(Mode.OFF), int(Mode.ABSOLUTE), int(Mode.RELATIVE))
+#: item types 0...ITEM_TYPES - 1, 32 per sub-index of 2015h (sub 1...8)
+ITEM_TYPES = 256
+_TYPE_SUBS = range(1, ITEM_TYPES // 32 + 1)
+
+
+def type_bits(types: frozenset[int] | None) -> tuple[int, ...]:
+    """2015h:1-8 of a set of item types (None: every type, all bits set)."""
+    if types is None:
+        return tuple(0xFFFFFFFF for _ in _TYPE_SUBS)
+    return tuple(sum(1 << (t - 32 * (s - 1)) for t in types if 32 * (s - 1) <= t < 32 * s)
+                 for s in _TYPE_SUBS)
+
+
+def bits_types(bits: tuple[int, ...]) -> frozenset[int] | None:
+    """The item types of 2015h:1-8 (None: every type, all bits set)."""
+    if all(b == 0xFFFFFFFF for b in bits):
+        return None
+    return frozenset(32 * i + b for i, word in enumerate(bits) for b in range(32)
+                     if word >> b & 1)
 
 #: 2011h command access bits
 ACCESS_OPERATIONAL = 0x01
@@ -90,6 +116,7 @@ class PlcStatus:
     tracking_error_mm: float  # |actual - target| over x, y, z at this cycle's SYNC
     belt_vel_mm_s: float
     triggers_dropped: int = 0  # by the application's full trigger buffer
+    items_ignored: int = 0  # items of a type that is not tracked (2016h)
 
 
 class PlcHost(Protocol):
@@ -104,8 +131,15 @@ class PlcHost(Protocol):
     def engage(self, mode: Mode) -> None:
         """2005h: 0 de-sync on the path, 3/5 engage."""
 
-    def trigger(self, t_ns: int) -> None:
-        """An item trigger edge received at ``t_ns`` (controller time)."""
+    def trigger(self, t_ns: int, item_type: int) -> None:
+        """An item trigger edge received at ``t_ns`` (controller time) for an item of
+        ``item_type`` (0...255, 2014h)."""
+
+    def track_types(self) -> frozenset[int] | None:
+        """The item types tracked at the start (None: every type; 2015h)."""
+
+    def set_track_types(self, types: frozenset[int] | None) -> None:
+        """2015h written: track only items of ``types`` from now on (None: every type)."""
 
     def quick_stop(self, kind: str, detail: str) -> None:
         """Stop all drives (the reaction ``stop``)."""
@@ -186,6 +220,8 @@ class PlcNode(SlaveEngine):
         self.triggers = 0  # accepted trigger edges
         self.triggers_dropped = 0  # by the rate limit
         self.trigger_times: list[int] = []
+        #: the item type (2014h) of the last 1000 accepted edges
+        self.trigger_types: deque[int] = deque(maxlen=1000)
         self.commands: list[tuple[int, int]] = []  # engage commands applied: (t_ns, value)
         self.refusals: list[tuple[int, int, int]] = []  # (index, sub, code)
         self._throttle = _Throttle()
@@ -215,6 +251,8 @@ class PlcNode(SlaveEngine):
             self.store(0x2020, sub, setting)
         for sub, value in zip((1, 2, 3), limits):
             self.store(0x2010, sub, float(value))
+        for sub, word in zip(_TYPE_SUBS, type_bits(self.host.track_types())):
+            self.store(0x2015, sub, word)
         if version:
             self.store(0x100A, 0, version)
         self._changed.clear()
@@ -313,7 +351,11 @@ class PlcNode(SlaveEngine):
         elif index == 0x2004:
             if value > 1:
                 raise SdoAbortError(ABORT_VALUE_RANGE)
-            self._trigger_input(int(value))
+            self._trigger_input(int(value), int(self.load(0x2014)))
+        elif index == 0x2015:
+            words = [int(self.load(0x2015, s)) for s in _TYPE_SUBS]
+            words[sub - 1] = int(value)
+            self.host.set_track_types(bits_types(tuple(words)))
         elif index == 0x2010:
             if self.host.track_state() is not TrackState.OFF:
                 raise SdoAbortError(ABORT_DEVICE_STATE)
@@ -325,12 +367,17 @@ class PlcNode(SlaveEngine):
     def on_rpdo_data(self, number: int, values: list[tuple[int, int, bytes]]
                      ) -> list[tuple[int, int, bytes]]:
         kept = []
+        refusal = self.refusal()
+        # the item type of this frame's edge: 2014h of the same PDO wherever it is mapped
+        item_type = int(self.load(0x2014))
+        if refusal is None:
+            for index, sub, raw in values:
+                if index == 0x2014:
+                    item_type = int(self.decode(index, sub, raw))
         for index, sub, raw in values:
-            if index in MOTION_OBJECTS:
-                r = self.refusal()
-                if r is not None:
-                    self._refuse(index, sub, r, f"RPDO{number}")
-                    continue
+            if index in MOTION_OBJECTS and refusal is not None:
+                self._refuse(index, sub, refusal, f"RPDO{number}")
+                continue
             value = self.decode(index, sub, raw)
             if index == 0x2005:
                 if value not in ENGAGE_VALUES or not self.host.tracking():
@@ -339,7 +386,7 @@ class PlcNode(SlaveEngine):
                     self._engage(int(value))
                 self._rpdo_engage = int(value)
             elif index == 0x2004:
-                self._trigger_input(int(value) & 1)
+                self._trigger_input(int(value) & 1, item_type)
                 raw = bytes([int(value) & 1])
             kept.append((index, sub, raw))
         return kept
@@ -375,7 +422,7 @@ class PlcNode(SlaveEngine):
         self.commands.append((self.clock.now_ns(), value))
         self.host.engage(Mode(value))
 
-    def _trigger_input(self, value: int) -> None:
+    def _trigger_input(self, value: int, item_type: int) -> None:
         old = int(self.load(0x2004)) & 1
         if not (value & 1 and not old):
             return
@@ -391,7 +438,8 @@ class PlcNode(SlaveEngine):
             return
         self.triggers += 1
         self.trigger_times.append(t)
-        self.host.trigger(t)
+        self.trigger_types.append(item_type)
+        self.host.trigger(t, item_type)
 
     # -- the cycle ----------------------------------------------------------------------------
     def cycle(self, status: PlcStatus, sync_ns: int | None, sync_counter: int | None) -> None:
@@ -412,6 +460,7 @@ class PlcNode(SlaveEngine):
         self.store(0x2011, 0, self.command_access())
         self.store(0x2012, 0, self.refused & 0xFFFFFFFF)
         self.store(0x2013, 0, (self.triggers_dropped + status.triggers_dropped) & 0xFFFFFFFF)
+        self.store(0x2016, 0, status.items_ignored & 0xFFFFFFFF)
         due = self.next_timer_ns()
         if due is not None and due <= now:
             self.on_timer(now)
