@@ -7,7 +7,17 @@ Shared by every configuration reader (bus.yml in ``controller.canopen``, scenari
 :class:`MarkedList` that remember the 1-based line of every key, value and item.  A
 :class:`Section` wraps one mapping with its dotted path and checks each value's type and range
 when read; :meth:`Section.finish` rejects the keys nobody read, suggesting the closest known
-key (dcfgen silently ignores unknown keys; we do not).
+key (dcfgen silently ignores unknown keys; we do not); :meth:`Section.check_keys` does so up
+front, listing the valid keys.
+
+Two families of getters share the locations, the key bookkeeping and the errors:
+
+- ``int``/``float``/``bool``/``str``/``vector``: the bus.yml getters (dcfgen's types, ranges
+  written ``[lo...hi]``);
+- ``number``/``boolean``/``string``/``xyz``/``optional_section``: the scenario files'
+  getters (``cantrack simulate``): numbers with a unit in the message and open or closed
+  bounds, ``[x, y, z]`` vectors of a unit, and a key left empty in a file (``key:``) named
+  as such instead of taken as absent.
 
 Type rules are deliberately strict, because dcfgen coerces silently (``bool("false")`` is
 True, ``int(2.7)`` is 2): an integer field takes a YAML integer (decimal or ``0x`` hex) and
@@ -30,6 +40,11 @@ import yaml
 from .errors import ConfigError
 
 _MISSING: Any = object()
+#: the default of a required key (the getters raise "required key is missing" without one)
+MISSING: Any = _MISSING
+#: the largest |coordinate| of a position or angle a getter with unit mm or deg takes
+#: without bounds of its own [mm, deg] (1 km: 1e300 would overflow a planner's arithmetic)
+MAX_POSITION = 1e6
 
 
 def read_text(path: str | Path) -> str:
@@ -286,20 +301,40 @@ class Section:
 
     ``path`` is the dotted key path of the mapping (``""`` at the top level).  Every getter
     records the key as known; :meth:`finish` raises on keys that were not read.
+    ``base_dir``: where the file's relative paths (CSV files, ...) are resolved; ``root``:
+    how messages name the top level (``"the scenario"``).  Sections read from a section
+    (:meth:`section`, :meth:`child`) share the file, ``base_dir`` and ``root``.
     """
 
     def __init__(self, data: Any, file: str, path: str = "", line: int | None = None,
-                 head: int | None = None) -> None:
+                 head: int | None = None, *, base_dir: Path | None = None,
+                 root: builtins.str = "the file") -> None:
         if not isinstance(data, dict):
             raise ConfigError(f"must be a mapping, not {_type_name(data)}", file=file,
-                              line=line, key=path or None)
+                              line=line if line is not None or path else 1, key=path or None)
         self.data = data
         self.file = file
         self.path = path
         self.line = getattr(data, "line", line)
         #: the line of the key that introduced this section (for "required key is missing")
         self.head = head if head is not None else self.line
-        self._known: list[str] = []
+        self.base_dir = base_dir if base_dir is not None else Path.cwd()
+        self.root = root
+        self._known: list[Any] = []
+
+    def child(self, data: Any, path: builtins.str, line: int | None) -> Section:
+        """A section of this file for ``data`` at ``path`` introduced on ``line`` (a list
+        item, a mapping built from this one's values)."""
+        return Section(data, self.file, path, line, line if line is not None else self.line,
+                       base_dir=self.base_dir, root=self.root)
+
+    def fail(self, message: builtins.str, line: int | None,
+             path: builtins.str | None) -> ConfigError:
+        """An error of this file at ``line`` and key ``path`` (a value inside a list, ...)."""
+        return ConfigError(message, file=self.file, line=line, key=path)
+
+    def _where(self) -> builtins.str:
+        return f"'{self.path}'" if self.path else self.root
 
     # -- locations ---------------------------------------------------------------------
     def key_path(self, key: Any) -> str:
@@ -326,7 +361,9 @@ class Section:
 
     # -- getters -----------------------------------------------------------------------
     def has(self, key: Any) -> bool:
-        return key in self.data
+        """``key`` is given: in a file also when left empty (a getter names that), in a
+        mapping from Python not when None."""
+        return key in self.data and (self.data[key] is not None or is_marked(self.data))
 
     def raw(self, key: Any, default: Any = _MISSING) -> Any:
         self._known.append(key)
@@ -418,10 +455,11 @@ class Section:
         ``{}`` -> an empty section)."""
         value = self.raw(key, default)
         if key not in self.data:
-            return value if value is None else Section(value, self.file, self.key_path(key),
-                                                       self.line)
+            return value if value is None else Section(
+                value, self.file, self.key_path(key), self.line, base_dir=self.base_dir,
+                root=self.root)
         return Section(value, self.file, self.key_path(key), self.value_line(key),
-                       self.key_line(key))
+                       self.key_line(key), base_dir=self.base_dir, root=self.root)
 
     def list(self, key: Any, default: Any = _MISSING
              ) -> builtins.list[tuple[Any, builtins.int | None, builtins.str]]:
@@ -434,6 +472,84 @@ class Section:
         lines = item_lines(value, self.value_line(key))
         return [(v, line, f"{self.key_path(key)}[{i}]")
                 for i, (v, line) in enumerate(zip(value, lines))]
+
+    # -- the scenario files' getters ------------------------------------------------------
+    def check_keys(self, allowed: Iterable[Any]) -> None:
+        """Reject every key not in ``allowed`` now, naming the closest and all valid keys."""
+        allowed = builtins.list(allowed)
+        for k in self.data:
+            if k in allowed:
+                continue
+            close = closest(k, allowed)
+            hint = f"; did you mean '{close}'?" if close else ""
+            raise ConfigError(f"unknown key in {self._where()}{hint} (valid keys: "
+                              f"{', '.join(map(builtins.str, allowed))})", file=self.file,
+                              line=self.key_line(k), key=self.key_path(k))
+        self._known.extend(allowed)
+
+    def given(self, key: Any, default: Any = _MISSING) -> Any:
+        """The value at ``key``, ``default`` when absent (required without one); a key left
+        empty in a file is an error, not the default."""
+        self._known.append(key)
+        value = self.data.get(key)
+        if value is None and key in self.data and is_marked(self.data):
+            raise self.error(key, "has no value (empty or null): give one or delete the key")
+        if value is not None:
+            return value
+        if default is _MISSING:
+            raise self.missing(key)
+        return default
+
+    def number(self, key: Any, default: Any = _MISSING, *, lo: builtins.float | None = None,
+               hi: builtins.float | None = None, lo_open: builtins.bool = False,
+               hi_open: builtins.bool = False, unit: builtins.str = "",
+               integer: builtins.bool = False) -> Any:
+        """A finite number [``unit``] within the bounds (open or closed); with unit mm or
+        deg and no bounds, within :data:`MAX_POSITION`; ``default`` returned as it is."""
+        value = self.given(key, default)
+        if value is default and default is not _MISSING:
+            return value
+        if unit in ("mm", "deg") and lo is None and hi is None:
+            lo, hi = -MAX_POSITION, MAX_POSITION
+        return check_number(value, lambda msg: self.error(key, msg), lo=lo, hi=hi,
+                            lo_open=lo_open, hi_open=hi_open, unit=unit, integer=integer)
+
+    def boolean(self, key: Any, default: Any = _MISSING) -> Any:
+        value = self.given(key, default)
+        if value is default and default is not _MISSING:
+            return value
+        if not isinstance(value, builtins.bool):
+            raise self.error(key, f"must be true or false, got {describe(value)}")
+        return value
+
+    def string(self, key: Any, default: Any = _MISSING) -> Any:
+        value = self.given(key, default)
+        if value is default and default is not _MISSING:
+            return value
+        if not isinstance(value, builtins.str):
+            raise self.error(key, f"must be a string, got {describe(value)}")
+        return value
+
+    def xyz(self, key: Any, default: Any = _MISSING, *, unit: builtins.str = "") -> Any:
+        """``[x, y, z]`` [``unit``]; a position (mm) within :data:`MAX_POSITION`."""
+        value = self.given(key, default)
+        if value is default and default is not _MISSING:
+            return value
+        if not isinstance(value, builtins.list) or len(value) != 3:
+            raise self.error(key, f"must be a list of 3 numbers [x, y, z]{_unit(unit)}, "
+                                  f"got {describe(value)}")
+        bound = MAX_POSITION if unit == "mm" else None
+        return tuple(check_number(v, lambda msg, i=i: self.error(key, f"item {i}: {msg}"),
+                                  lo=None if bound is None else -bound, hi=bound, unit=unit)
+                     for i, v in enumerate(value))
+
+    def optional_section(self, key: Any) -> Section | None:
+        """The mapping at ``key`` if given, None when absent (:meth:`section`: required)."""
+        if not self.has(key):
+            self._known.append(key)
+            return None
+        self.given(key)
+        return self.child(self.data[key], self.key_path(key), self.key_line(key))
 
     def items(self) -> Iterator[tuple[Any, Any]]:
         """All (key, value) pairs, marking every key as known."""
@@ -455,6 +571,48 @@ class Section:
             if key not in known:
                 raise self.error(key, "unknown key" + suggest(key, [str(k) for k in known]),
                                  at_value=False)
+
+
+def describe(value: Any) -> str:
+    """A value as the scenario getters name it in a message (``'x' (str)``, ``a list of 2``)."""
+    if value is None:
+        return "nothing"
+    if isinstance(value, dict):
+        return "a mapping"
+    if isinstance(value, list):
+        return f"a list of {len(value)}"
+    return f"{value!r} ({type(value).__name__})"
+
+
+def _unit(unit: str) -> str:
+    return f" {unit}" if unit else ""
+
+
+def _range_text(lo: float | None, hi: float | None, lo_open: bool, hi_open: bool) -> str:
+    if hi is None:
+        return f"> {lo:g}" if lo_open else f">= {lo:g}"
+    if lo is None:
+        return f"< {hi:g}" if hi_open else f"<= {hi:g}"
+    return f"in {'(' if lo_open else '['}{lo:g}...{hi:g}{')' if hi_open else ']'}"
+
+
+def check_number(value: Any, fail: Callable[..., ConfigError], *, lo: float | None = None,
+                 hi: float | None = None, lo_open: bool = False, hi_open: bool = False,
+                 unit: str = "", integer: bool = False) -> float | int:
+    """``value`` as a finite number (an int with ``integer``) within the bounds (open or
+    closed), else ``fail(message)`` raised; ``unit`` is named in the message."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        kind = "an integer" if integer else "a number"
+        raise fail(f"must be {kind}{_unit(unit)}, got {describe(value)}")
+    if not math.isfinite(value):
+        raise fail(f"must be a finite number, got {value!r}")
+    if integer and int(value) != value:
+        raise fail(f"must be an integer, got {value!r}")
+    if (lo is not None and (value < lo or (lo_open and value == lo))) or \
+            (hi is not None and (value > hi or (hi_open and value == hi))):
+        raise fail(f"value {value!r} is out of range: must be "
+                   f"{_range_text(lo, hi, lo_open, hi_open)}{_unit(unit)}")
+    return int(value) if integer else float(value)
 
 
 def _fmt(x: float) -> str:

@@ -90,9 +90,9 @@ def test_missing_required_key(tmp_path):
     with pytest.raises(ConfigError) as info:
         load_scenario(write(tmp_path, text))
     assert info.value.key == "tracker.planner" and info.value.line == 5
-    assert "required key missing" in str(info.value)
+    assert "required key is missing" in str(info.value)
     text = GOOD.replace("engage: 0.02\n", "")
-    with pytest.raises(ConfigError, match="key 'engage': required key missing"):
+    with pytest.raises(ConfigError, match="key 'engage': required key is missing"):
         load_scenario(write(tmp_path, text))
 
 

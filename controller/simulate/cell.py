@@ -70,7 +70,8 @@ from ..tracking import Mode, TrackerParams, unwrap_counts
 from .conveyor import (FrameSpec, MasterSpec, PickProgram, ProgramSpec, RobotSpec,
                        master_fn, read_frame, read_location, read_master, read_program,
                        read_robot)
-from .reading import MAX_SAMPLES, Node, SampledRun, check_number, tracker_params
+from ..yamlmarks import Section, check_number
+from .reading import MAX_SAMPLES, SampledRun, tracker_params
 
 __all__ = ["CellScenario", "CellResult", "parse_cell", "run_cell", "write_cell_trace",
            "format_cell_summary", "plot_cell_result"]
@@ -152,9 +153,9 @@ class CellScenario(SampledRun):
     source: Path | None = None
 
 
-def _req(node: Node, key: str) -> Node:
-    """A required section (missing: the ConfigError of ``section(required=True)``)."""
-    sec = node.section(key, required=True)
+def _req(node: Section, key: str) -> Section:
+    """A required section (missing: "required key is missing" at the key)."""
+    sec = node.section(key)
     assert sec is not None
     return sec
 
@@ -171,25 +172,25 @@ class _Trace:
     events: list[Event]
 
 
-def _sub(node: Node, drop: tuple[str, ...]) -> Node:
+def _sub(node: Section, drop: tuple[str, ...]) -> Section:
     """The node without the keys ``drop`` (read here), for a reader of the rest."""
-    m = copy.copy(node.m)
+    m = copy.copy(node.data)
     for k in drop:
         m.pop(k, None)
-    return Node(node.ctx, m, node.path, node.line)
+    return node.child(m, node.path, node.head)
 
 
-def _names(node: Node, key: str, known: dict | list, what: str) -> tuple[str, ...]:
+def _names(node: Section, key: str, known: dict | list, what: str) -> tuple[str, ...]:
     out = []
-    for v, line, path in node.items(key):
+    for v, line, path in node.list(key):
         if not isinstance(v, str) or v not in known:
-            raise node.ctx.error(f"unknown {what} {v!r} (known: "
+            raise node.fail(f"unknown {what} {v!r} (known: "
                                  f"{', '.join(map(repr, known))})", line, path)
         out.append(v)
     return tuple(out)
 
 
-def _kinematics(node: Node | None) -> Kinematics | None:
+def _kinematics(node: Section | None) -> Kinematics | None:
     if node is None:
         return None
     node.check_keys(("type", "dimension"))
@@ -200,14 +201,14 @@ def _kinematics(node: Node | None) -> Kinematics | None:
         raise node.error("dimension" if "dimension" in str(exc) else "type", str(exc)) from None
 
 
-def _group_frame(node: Node) -> CellFrameSpec:
+def _group_frame(node: Section) -> CellFrameSpec:
     """A frame whose master is another robot's TCP (type 3)."""
     node.check_keys(("name", "group", "window", "limits", "world"))
     name = node.string("name")
     g = _req(node, "group")
     g.check_keys(("robot", "transform", "axis"))
     transform = read_location(g, "transform", Location()) or Location()
-    axis = g.vector("axis", (0.0, 0.0, 1.0))
+    axis = g.xyz("axis", (0.0, 0.0, 1.0))
     if not any(axis):
         raise g.error("axis", "must not be the zero vector")
     window = Window.unlimited(4)
@@ -216,31 +217,31 @@ def _group_frame(node: Node) -> CellFrameSpec:
         w.check_keys(("upstream", "downstream"))
         lims = []
         for key in ("upstream", "downstream"):
-            items = w.items(key)
+            items = w.list(key)
             if len(items) != 4:
                 raise w.error(key, "a group frame has 4 DOFs (dx, dy, dz [mm], angle [deg] "
                                    f"since the trigger): give 4 limits, got {len(items)}")
             lims.append(tuple(check_number(v, lambda m, line=line, path=path:
-                                           node.ctx.error(m, line, path))
+                                           node.fail(m, line, path))
                               for v, line, path in items))
         try:
             window = Window(lims[0], lims[1])
         except ParameterError as exc:
             raise w.error("downstream", str(exc)) from None
-    world = _kinematics(node.section("world"))
-    gs = GroupSpec(g.string("robot"), transform, tuple(axis), g.line_of("robot"),
-                   g.key("robot"))
+    world = _kinematics(node.optional_section("world"))
+    gs = GroupSpec(g.string("robot"), transform, tuple(axis), g.value_line("robot"),
+                   g.key_path("robot"))
     return CellFrameSpec(None, (), (), (), window, world, gs, name)
 
 
-def _cell_frame(node: Node, masters: dict[str, MasterSpec]) -> CellFrameSpec:
+def _cell_frame(node: Section, masters: dict[str, MasterSpec]) -> CellFrameSpec:
     if node.has("group"):
         return _group_frame(node)
     extra = ("masters", "directions", "scales_mm_per_unit", "world")
     names = _names(node, "masters", masters, "master")
     if not names:
         raise node.error("masters", "must name at least one master")
-    world = _kinematics(node.section("world"))
+    world = _kinematics(node.optional_section("world"))
     nof = len(names)
     if nof == 1:
         for k in ("directions", "scales_mm_per_unit"):
@@ -258,51 +259,51 @@ def _cell_frame(node: Node, masters: dict[str, MasterSpec]) -> CellFrameSpec:
     if node.raw("type", "linear") not in ("linear", 0):
         raise node.error("type", f"a frame with {nof} masters must be linear")
     dirs = []
-    for v, line, path in node.items("directions"):
-        d = Node(node.ctx, {"d": v}, path, line).vector("d", unit="")
+    for v, line, path in node.list("directions"):
+        d = node.child({"d": v}, path, line).xyz("d", unit="")
         n = math.sqrt(sum(x * x for x in d))
         if n == 0.0:
-            raise node.ctx.error("must not be the zero vector", line, path)
+            raise node.fail("must not be the zero vector", line, path)
         dirs.append(tuple(x / n for x in d))
     if len(dirs) != nof:
         raise node.error("directions", f"must give {nof} directions (one per master), got "
                                        f"{len(dirs)}")
     scales = [1.0] * nof
     if node.has("scales_mm_per_unit"):
-        items = node.items("scales_mm_per_unit")
+        items = node.list("scales_mm_per_unit")
         if len(items) != nof:
             raise node.error("scales_mm_per_unit", f"must give {nof} values, got {len(items)}")
-        scales = [check_number(v, lambda m, line=line, path=path: node.ctx.error(m, line, path),
+        scales = [check_number(v, lambda m, line=line, path=path: node.fail(m, line, path),
                                unit="mm per master unit") for v, line, path in items]
     w = _req(node, "window")
     w.check_keys(("upstream", "downstream"))
     lims = []
     for key in ("upstream", "downstream"):
-        items = w.items(key)
+        items = w.list(key)
         if len(items) != nof:
             raise w.error(key, f"must give {nof} limits (one per DOF) [mm], got {len(items)}")
         lims.append(tuple(check_number(v, lambda m, line=line, path=path:
-                                       node.ctx.error(m, line, path), unit="mm")
+                                       node.fail(m, line, path), unit="mm")
                           for v, line, path in items))
     try:
         window = Window(lims[0], lims[1])
     except ParameterError as exc:
         raise w.error("downstream", str(exc)) from None
-    m1 = copy.copy(node.m)
+    m1 = copy.copy(node.data)
     for k in extra + ("type",):
         m1.pop(k, None)
     m1["window"] = {"upstream": lims[0][0], "downstream": lims[1][0]}
     m1["direction"] = list(dirs[0])
-    spec = read_frame(Node(node.ctx, m1, node.path, node.line))
+    spec = read_frame(node.child(m1, node.path, node.head))
     return CellFrameSpec(spec, names, tuple(dirs), tuple(scales), window, world)
 
 
-def _changes(node: Node, frames: dict[str, CellFrameSpec], duration: float
+def _changes(node: Section, frames: dict[str, CellFrameSpec], duration: float
              ) -> tuple[FrameChange, ...]:
     out = []
     prev = -math.inf
-    for v, line, path in node.items("master_frame"):
-        c = Node(node.ctx, v, path, line)
+    for v, line, path in node.list("master_frame"):
+        c = node.child(v, path, line)
         c.check_keys(("time_s", "frame"))
         t = c.number("time_s", lo=0.0, hi=duration, hi_open=True, unit="s")
         if t < prev:
@@ -316,20 +317,20 @@ def _changes(node: Node, frames: dict[str, CellFrameSpec], duration: float
     return tuple(out)
 
 
-def _cell_robot(node: Node, frames: dict[str, CellFrameSpec], duration: float
+def _cell_robot(node: Section, frames: dict[str, CellFrameSpec], duration: float
                 ) -> CellRobotSpec:
     extra = ("kinematics", "track_types", "program", "master_frame")
     rs = read_robot(_sub(node, extra))
-    kin = _kinematics(node.section("kinematics")) or Kinematics()
+    kin = _kinematics(node.optional_section("kinematics")) or Kinematics()
     types: list[tuple[str, frozenset[int]]] = []
-    tn = node.section("track_types")
+    tn = node.optional_section("track_types")
     if tn is not None:
         tn.check_keys(tuple(frames))
         for fname in frames:
             if tn.has(fname):
                 ts = [check_number(v, lambda m, line=line, path=path:
-                                   node.ctx.error(m, line, path), lo=0, hi=255, integer=True)
-                      for v, line, path in tn.items(fname)]
+                                   node.fail(m, line, path), lo=0, hi=255, integer=True)
+                      for v, line, path in tn.list(fname)]
                 if not ts:
                     raise tn.error(fname, "must list at least one item type")
                 types.append((fname, frozenset(int(t) for t in ts)))
@@ -350,7 +351,7 @@ def _cell_robot(node: Node, frames: dict[str, CellFrameSpec], duration: float
     return CellRobotSpec(rs, kin, tuple(types), pframe, prog, changes)
 
 
-def _sensor(node: Node, frames: dict[str, CellFrameSpec], robots: list[str],
+def _sensor(node: Section, frames: dict[str, CellFrameSpec], robots: list[str],
             duration: float) -> SensorSpec:
     node.check_keys(("frame", "robots", "trigger_times", "types", "radius_offsets_mm",
                      "offset"))
@@ -364,29 +365,29 @@ def _sensor(node: Node, frames: dict[str, CellFrameSpec], robots: list[str],
             raise node.error("offset", "is for group frames (a robot's TCP as the master)")
         offset = read_location(node, "offset", Location())
     names = _names(node, "robots", robots, "robot") if node.has("robots") else tuple(robots)
-    times = tuple(check_number(v, lambda m, line=line, path=path: node.ctx.error(m, line, path),
+    times = tuple(check_number(v, lambda m, line=line, path=path: node.fail(m, line, path),
                                lo=0.0, hi=duration, hi_open=True,
                                unit="s (the scenario's duration)")
-                  for v, line, path in node.items("trigger_times"))
+                  for v, line, path in node.list("trigger_times"))
     if list(times) != sorted(times):
         raise node.error("trigger_times", "times must be in increasing order")
 
     def per_time(key: str, default: Any, **kw) -> tuple:
         if not node.has(key):
             return (default,) * len(times)
-        items = node.items(key)
+        items = node.list(key)
         if len(items) != len(times):
             raise node.error(key, f"must give one value per trigger time ({len(times)}), got "
                                   f"{len(items)}")
         return tuple(check_number(v, lambda m, line=line, path=path:
-                                  node.ctx.error(m, line, path), **kw)
+                                  node.fail(m, line, path), **kw)
                      for v, line, path in items)
     types = per_time("types", 0, lo=0, hi=255, integer=True)
     drs = per_time("radius_offsets_mm", 0.0, unit="mm")
     return SensorSpec(fname, names, times, types, drs, offset)
 
 
-def parse_cell(root: Node, ctx, source: Path | None) -> CellScenario:
+def parse_cell(root: Section, source: Path | None) -> CellScenario:
     """Validate a cell scenario (``root``: the scenario's top-level node)."""
     root.check_keys(("name", "duration_s", "tracker", "cell"))
     name = root.string("name", "")
@@ -400,7 +401,7 @@ def parse_cell(root: Node, ctx, source: Path | None) -> CellScenario:
     cn.check_keys(("masters", "frames", "robots", "sensors"))
     mn = _req(cn, "masters")
     masters: dict[str, MasterSpec] = {}
-    for key in mn.m:
+    for key in mn.data:
         sec = _req(mn, key)
         if sec.has("log"):
             raise sec.error("log", "encoder logs replay single-frame conveyor scenarios only")
@@ -408,26 +409,26 @@ def parse_cell(root: Node, ctx, source: Path | None) -> CellScenario:
     if not masters:
         raise cn.error("masters", "must define at least one master")
     frames: dict[str, CellFrameSpec] = {}
-    for v, line, path in cn.items("frames"):
-        fs = _cell_frame(Node(ctx, v, path, line), masters)
+    for v, line, path in cn.list("frames"):
+        fs = _cell_frame(root.child(v, path, line), masters)
         if fs.name in frames:
-            raise ctx.error(f"frame name {fs.name!r} is used twice", line, path)
+            raise root.fail(f"frame name {fs.name!r} is used twice", line, path)
         frames[fs.name] = fs
     robots: list[CellRobotSpec] = []
-    for v, line, path in cn.items("robots"):
-        rs = _cell_robot(Node(ctx, v, path, line), frames, duration)
+    for v, line, path in cn.list("robots"):
+        rs = _cell_robot(root.child(v, path, line), frames, duration)
         if rs.name in [r.name for r in robots]:
-            raise ctx.error(f"robot name {rs.name!r} is used twice", line, path)
+            raise root.fail(f"robot name {rs.name!r} is used twice", line, path)
         robots.append(rs)
     if not frames or not robots:
         raise cn.error("frames" if not frames else "robots", "must list at least one")
     for fs in frames.values():
         if fs.group is not None and fs.group.robot not in [r.name for r in robots]:
-            raise ctx.error(f"unknown robot {fs.group.robot!r} (known: "
+            raise root.fail(f"unknown robot {fs.group.robot!r} (known: "
                             f"{', '.join(repr(r.name) for r in robots)})", fs.group.line,
                             fs.group.path)
-    sensors = tuple(_sensor(Node(ctx, v, path, line), frames, [r.name for r in robots],
-                            duration) for v, line, path in cn.items("sensors"))
+    sensors = tuple(_sensor(root.child(v, path, line), frames, [r.name for r in robots],
+                            duration) for v, line, path in cn.list("sensors"))
     return CellScenario(params, float(duration), masters, tuple(frames.values()),
                         tuple(robots), sensors, name, source)
 

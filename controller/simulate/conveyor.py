@@ -83,8 +83,8 @@ from ..conveyor.sources import quantise_counts
 from ..conveyor.telemetry import ItemRecord
 from ..errors import ConfigError, ParameterError
 from ..tracking import Imfs, Mode, TrackerParams
-from .reading import (MAX_SAMPLES, Node, SampledRun, check_number, segment_master,
-                      tracker_params, unit_vector)
+from ..yamlmarks import Section, check_number
+from .reading import MAX_SAMPLES, SampledRun, segment_master, tracker_params, unit_vector
 
 __all__ = ["ConveyorScenario", "ConveyorResult", "PickProgram", "parse_conveyor",
            "run_conveyor", "write_conveyor_trace", "write_logs"]
@@ -181,12 +181,12 @@ def _location(node, key: str, default: Any = None) -> Location | None:
         return default
     value = node.raw(key)
     if isinstance(value, list):
-        return Location(node.vector(key, unit="mm"))
-    sub = Node(node.ctx, value, node.key(key), node.line_of(key))
+        return Location(node.xyz(key, unit="mm"))
+    sub = node.child(value, node.key_path(key), node.value_line(key))
     sub.check_keys(("position", "axis", "angle_deg"))
-    pos = sub.vector("position", unit="mm")
+    pos = sub.xyz("position", unit="mm")
     angle = sub.number("angle_deg", 0.0, unit="deg")
-    axis = sub.vector("axis", (0.0, 0.0, 1.0))
+    axis = sub.xyz("axis", (0.0, 0.0, 1.0))
     try:
         return Location.from_axis_angle(pos, axis, angle)
     except ParameterError as exc:
@@ -204,7 +204,7 @@ def _frame(node) -> FrameSpec:
         raise node.error("type", f"must be linear | rotary | rotary_decoupled | 0 | 1 | 2, "
                                  f"got {t!r}")
     ftype = _TYPES[key]
-    w = node.section("window", required=True)
+    w = node.section("window")
     w.check_keys(("upstream", "downstream"))
     unit = "mm" if ftype == LINEAR else "deg"
     up = w.number("upstream", unit=unit)
@@ -214,7 +214,7 @@ def _frame(node) -> FrameSpec:
                                     f"({up!r}) {unit}")
     window = Window.single(up, down)
     limits = FrameLimits()
-    ln = node.section("limits")
+    ln = node.optional_section("limits")
     if ln is not None:
         names = list(FrameLimits.__dataclass_fields__)
         ln.check_keys(names)
@@ -237,8 +237,8 @@ def _frame(node) -> FrameSpec:
     upstream = _location(node, "upstream", None)
     if upstream is None:
         node.raw("upstream")
-    arc_point = node.vector("arc_point", unit="mm")
-    downstream = node.vector("downstream", unit="mm")
+    arc_point = node.xyz("arc_point", unit="mm")
+    downstream = node.xyz("downstream", unit="mm")
     up_master = node.number("up_master", 0.0)
     down_master = node.number("down_master")
     if down_master == up_master:
@@ -262,7 +262,7 @@ def _master(node) -> MasterSpec:
                          "give exactly one of speed, profile, log")
     start = node.number("start", 0.0)
     enc = None
-    en = node.section("encoder")
+    en = node.optional_section("encoder")
     if en is not None:
         en.check_keys(("counts_per_unit", "modulus", "window"))
         enc = EncoderSpec(en.number("counts_per_unit", lo=0.0, lo_open=True),
@@ -274,7 +274,7 @@ def _master(node) -> MasterSpec:
                                     "(counts_per_unit, modulus)")
         path = Path(node.string("log"))
         if not path.is_absolute():
-            path = node.ctx.base_dir / path
+            path = node.base_dir / path
         try:
             logs = read_encoder_log(path)
         except OSError as exc:
@@ -286,7 +286,7 @@ def _master(node) -> MasterSpec:
         counts = tuple(next(iter(logs.values())))
         return MasterSpec(start, 0.0, None, enc, counts, path)
     if node.has("profile"):
-        prof = node.section("profile")
+        prof = node.optional_section("profile")
         return MasterSpec(start, 0.0, segment_master(prof), enc)
     return MasterSpec(start, node.number("speed", unit="master units/s"), None, enc)
 
@@ -300,27 +300,27 @@ def _items(node, duration_s: float, n_samples: int, frame: FrameSpec,
                          "give exactly one of trigger_times, csv, log")
     if node.has("trigger_times"):
         times = []
-        for v, line, path in node.items("trigger_times"):
+        for v, line, path in node.list("trigger_times"):
             times.append(check_number(v, lambda m, line=line, path=path:
-                                       node.ctx.error(m, line, path), lo=0.0, hi=duration_s,
+                                       node.fail(m, line, path), lo=0.0, hi=duration_s,
                                        hi_open=True, unit="s (the scenario's duration)"))
         drs = [0.0] * len(times)
         if node.has("radius_offsets_mm"):
-            items = node.items("radius_offsets_mm")
+            items = node.list("radius_offsets_mm")
             if len(items) != len(times):
                 raise node.error("radius_offsets_mm", f"must give one value per trigger time "
                                                       f"({len(times)}), got {len(items)}")
             drs = [check_number(v, lambda m, line=line, path=path:
-                                 node.ctx.error(m, line, path), unit="mm")
+                                 node.fail(m, line, path), unit="mm")
                    for v, line, path in items]
         types = [0] * len(times)
         if node.has("types"):
-            items = node.items("types")
+            items = node.list("types")
             if len(items) != len(times):
                 raise node.error("types", f"must give one item type per trigger time "
                                           f"({len(times)}), got {len(items)}")
             types = [check_number(v, lambda m, line=line, path=path:
-                                  node.ctx.error(m, line, path), lo=0, hi=255, integer=True)
+                                  node.fail(m, line, path), lo=0, hi=255, integer=True)
                      for v, line, path in items]
         if times != sorted(times):
             raise node.error("trigger_times", "times must be in increasing order")
@@ -331,7 +331,7 @@ def _items(node, duration_s: float, n_samples: int, frame: FrameSpec,
     name = node.string(kinds[0])
     path = Path(name)
     if not path.is_absolute():
-        path = node.ctx.base_dir / path
+        path = node.base_dir / path
     if kinds[0] == "log":
         try:
             events = read_trigger_log(path)
@@ -405,7 +405,7 @@ def _robot(node) -> RobotSpec:
     if slave not in (3, 5):
         raise node.error("slave", f"value {slave!r} is out of range: must be 3 or 5")
     ml = MotionLimits()
-    mn = node.section("motion")
+    mn = node.optional_section("motion")
     if mn is not None:
         names = ("vel", "acc", "jerk", "rot_vel", "rot_acc", "rot_jerk")
         mn.check_keys(names)
@@ -414,9 +414,9 @@ def _robot(node) -> RobotSpec:
     types = None
     if node.has("track_types"):
         types = frozenset(check_number(v, lambda m, line=line, path=path:
-                                       node.ctx.error(m, line, path), lo=0, hi=255,
+                                       node.fail(m, line, path), lo=0, hi=255,
                                        integer=True)
-                          for v, line, path in node.items("track_types"))
+                          for v, line, path in node.list("track_types"))
         if not types:
             raise node.error("track_types", "must list at least one item type (leave the key "
                                             "out to track every type)")
@@ -435,26 +435,26 @@ def _program(node) -> ProgramSpec:
                        _location(node, "place", None), node.boolean("predict", True))
 
 
-def parse_conveyor(root, ctx, source: Path | None) -> ConveyorScenario:
+def parse_conveyor(root: Section, source: Path | None) -> ConveyorScenario:
     """Validate a conveyor scenario (``root``: the scenario's top-level node)."""
     root.check_keys(("name", "duration_s", "tracker", "conveyor"))
     name = root.string("name", "")
-    params = tracker_params(root.section("tracker", required=True))
+    params = tracker_params(root.section("tracker"))
     duration = root.number("duration_s", lo=0.0, lo_open=True, unit="s")
     n = round(duration / params.sample_time_s)
     if n < 1 or n > MAX_SAMPLES:
         raise root.error("duration_s", f"the run has {n} samples: must be in "
                                        f"[1...{MAX_SAMPLES}]")
-    cn = root.section("conveyor", required=True)
+    cn = root.section("conveyor")
     cn.check_keys(("frame", "master", "items", "robot", "program"))
-    frame = _frame(cn.section("frame", required=True))
-    master = _master(cn.section("master", required=True))
+    frame = _frame(cn.section("frame"))
+    master = _master(cn.section("master"))
     if master.log is not None and len(master.log) < n + 1:
         raise cn.error("master", f"the encoder log has {len(master.log)} samples, the run "
                                  f"needs {n + 1} (duration {duration:g} s)")
-    robot = _robot(cn.section("robot", required=True))
-    items = _items(cn.section("items", required=True), duration, n, frame, robot.name)
-    program = _program(cn.section("program"))
+    robot = _robot(cn.section("robot"))
+    items = _items(cn.section("items"), duration, n, frame, robot.name)
+    program = _program(cn.optional_section("program"))
     return ConveyorScenario(params, float(duration), frame, master, items, robot, program,
                             name, source)
 

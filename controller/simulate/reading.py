@@ -1,11 +1,11 @@
-"""Validated readers shared by the scenario files of ``cantrack simulate`` (tracking,
-conveyor and cell scenarios): a mapping node with file, line and dotted key path, numbers
-with ranges and units, the tracker parameters, the segment master and the sampled-run base.
+"""Readers shared by the scenario files of ``cantrack simulate`` (tracking, conveyor and
+cell scenarios): the tracker parameters, the segment master and the sampled-run base.
 
-The YAML itself is read by :mod:`controller.yamlmarks`, and so are its marks: the lines of
-keys, values and list items (``key_line``, ``value_line``, ``item_lines``) and the closest
-known key of a misspelt one (``closest``) come from there, as for bus.yml.  Every problem
-is a :class:`controller.errors.ConfigError` naming the file, the line and the key.  Public
+The files are read as bus.yml is, by :mod:`controller.yamlmarks`: the YAML with its line
+marks (``load_marked``) and each mapping as a :class:`~controller.yamlmarks.Section` (file,
+line and dotted key path; the scenario getters ``number``/``boolean``/``string``/``xyz``/
+``optional_section``/``check_keys`` with units and open or closed bounds).  Every problem is
+a :class:`controller.errors.ConfigError` naming the file, the line and the key.  Public
 names are used by :mod:`.scenario`, :mod:`.conveyor` and :mod:`.cell`; none of those
 imports another's private names.
 """
@@ -21,182 +21,18 @@ from pathlib import Path
 from typing import Any, Iterable
 
 from ..errors import ConfigError, ParameterError
-from ..yamlmarks import closest, is_marked, item_lines, key_line, value_line
+from ..yamlmarks import MAX_POSITION, MISSING, Section, closest, describe
 from ..tracking import PLANNERS, Limits, Mode, Rates, SoftMcOptions, TrackerParams
 from ..tracking.types import DEFAULT_ROT, DEFAULT_TRANS
 
-__all__ = ["MAX_POSITION_MM", "MAX_SAMPLES", "MISSING", "Ctx", "CsvMaster", "EncoderSpec",
-           "Node", "SampledRun", "Segment", "SegmentMaster", "check_number", "describe",
-           "segment_master", "tracker_params", "unit_vector"]
+__all__ = ["MAX_POSITION_MM", "MAX_SAMPLES", "CsvMaster", "EncoderSpec", "SampledRun",
+           "Segment", "SegmentMaster", "segment_master", "tracker_params", "unit_vector"]
 
 #: upper bound on duration_s / sample_time_s (a typo should not run for hours)
 MAX_SAMPLES = 1_000_000
 
-_MISSING: Any = object()
-
-
-
-
-# -- validated values --------------------------------------------------------------------
-def _range_text(lo: float | None, hi: float | None, lo_open: bool, hi_open: bool) -> str:
-    if hi is None:
-        return f"> {lo:g}" if lo_open else f">= {lo:g}"
-    if lo is None:
-        return f"< {hi:g}" if hi_open else f"<= {hi:g}"
-    return f"in {'(' if lo_open else '['}{lo:g}...{hi:g}{')' if hi_open else ']'}"
-
-
 #: the largest |coordinate| of a position in a scenario [mm] (1 km; also for angles [deg])
-MAX_POSITION_MM = 1e6
-
-
-class _Node:
-    """A mapping under validation: its values, the lines of its keys and its dotted path."""
-
-    def __init__(self, ctx: "_Ctx", value: Any, path: str, line: int | None) -> None:
-        self.ctx = ctx
-        self.path = path
-        if not isinstance(value, dict):
-            raise ctx.error(f"must be a mapping of keys, got {_describe(value)}",
-                            line if line is not None or path else 1, path or None)
-        self.m = value
-        #: the line of the section's key (or list item), else where the mapping starts
-        self.line = line if line is not None else getattr(value, "line", None)
-
-    def key(self, key: str) -> str:
-        return f"{self.path}.{key}" if self.path else key
-
-    def line_of(self, key: str) -> int | None:
-        return value_line(self.m, key, self.line)
-
-    def error(self, key: str, message: str) -> ConfigError:
-        return self.ctx.error(message, self.line_of(key), self.key(key))
-
-    def check_keys(self, allowed: Iterable[str]) -> None:
-        allowed = list(allowed)
-        for k in self.m:
-            if k in allowed:
-                continue
-            close = closest(k, allowed)
-            hint = f"; did you mean '{close}'?" if close else ""
-            where = f"'{self.path}'" if self.path else "the scenario"
-            raise self.ctx.error(
-                f"unknown key in {where}{hint} (valid keys: {', '.join(allowed)})",
-                key_line(self.m, k, self.line), self.key(str(k)))
-
-    def _from_file(self) -> bool:
-        return is_marked(self.m)
-
-    def has(self, key: str) -> bool:
-        # a file's `key:` left empty (null) is there, to be refused by raw(); in a mapping
-        # given from Python, None means "not given"
-        return key in self.m and (self.m[key] is not None or self._from_file())
-
-    def raw(self, key: str, default: Any = _MISSING) -> Any:
-        if key in self.m and self.m[key] is None and self._from_file():
-            # (not the default: a value the user left empty is a mistake to name)
-            raise self.error(key, "has no value (empty or null): give one or delete the key")
-        if key in self.m and self.m[key] is not None:
-            return self.m[key]
-        if default is _MISSING:
-            where = f"'{self.path}'" if self.path else "the scenario"
-            raise self.ctx.error(f"required key missing in {where}", self.line, self.key(key))
-        return default
-
-    def number(self, key: str, default: Any = _MISSING, *, lo: float | None = None,
-               hi: float | None = None, lo_open: bool = False, hi_open: bool = False,
-               unit: str = "", integer: bool = False) -> Any:
-        value = self.raw(key, default)
-        if value is default and default is not _MISSING:
-            return value
-        if unit in ("mm", "deg") and lo is None and hi is None:
-            lo, hi = -MAX_POSITION_MM, MAX_POSITION_MM  # (a position or an angle)
-        return _check_number(value, lambda msg: self.error(key, msg), lo=lo, hi=hi,
-                             lo_open=lo_open, hi_open=hi_open, unit=unit, integer=integer)
-
-    def boolean(self, key: str, default: Any = _MISSING) -> Any:
-        value = self.raw(key, default)
-        if value is default and default is not _MISSING:
-            return value
-        if not isinstance(value, bool):
-            raise self.error(key, f"must be true or false, got {_describe(value)}")
-        return value
-
-    def string(self, key: str, default: Any = _MISSING) -> Any:
-        value = self.raw(key, default)
-        if value is default and default is not _MISSING:
-            return value
-        if not isinstance(value, str):
-            raise self.error(key, f"must be a string, got {_describe(value)}")
-        return value
-
-    def vector(self, key: str, default: Any = _MISSING, *, unit: str = "") -> Any:
-        value = self.raw(key, default)
-        if value is default and default is not _MISSING:
-            return value
-        if not isinstance(value, list) or len(value) != 3:
-            raise self.error(key, f"must be a list of 3 numbers [x, y, z]{_unit(unit)}, "
-                                  f"got {_describe(value)}")
-        # a position is within MAX_POSITION_MM of the origin (1e300 would overflow the
-        # planners' arithmetic; no cell is larger than a kilometre)
-        bound = MAX_POSITION_MM if unit == "mm" else None
-        return tuple(_check_number(v, lambda msg, i=i: self.error(key, f"item {i}: {msg}"),
-                                   lo=None if bound is None else -bound, hi=bound, unit=unit)
-                     for i, v in enumerate(value))
-
-    def section(self, key: str, required: bool = False) -> "_Node | None":
-        if not self.has(key):
-            if required:
-                self.raw(key)
-            return None
-        return _Node(self.ctx, self.m[key], self.key(key), key_line(self.m, key, self.line))
-
-    def items(self, key: str) -> list[tuple[Any, int | None, str]]:
-        """The items of a list value: (value, line, path)."""
-        value = self.raw(key)
-        if not isinstance(value, list):
-            raise self.error(key, f"must be a list, got {_describe(value)}")
-        lines = item_lines(value, self.line_of(key))
-        return [(v, ln, f"{self.key(key)}[{i}]") for i, (v, ln) in enumerate(zip(value, lines))]
-
-
-def _unit(unit: str) -> str:
-    return f" {unit}" if unit else ""
-
-
-def _describe(value: Any) -> str:
-    if value is None:
-        return "nothing"
-    if isinstance(value, dict):
-        return "a mapping"
-    if isinstance(value, list):
-        return f"a list of {len(value)}"
-    return f"{value!r} ({type(value).__name__})"
-
-
-def _check_number(value: Any, fail, *, lo=None, hi=None, lo_open=False, hi_open=False,
-                  unit="", integer=False) -> float | int:
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        kind = "an integer" if integer else "a number"
-        raise fail(f"must be {kind}{_unit(unit)}, got {_describe(value)}")
-    if not math.isfinite(value):
-        raise fail(f"must be a finite number, got {value!r}")
-    if integer and int(value) != value:
-        raise fail(f"must be an integer, got {value!r}")
-    if (lo is not None and (value < lo or (lo_open and value == lo))) or \
-            (hi is not None and (value > hi or (hi_open and value == hi))):
-        raise fail(f"value {value!r} is out of range: must be "
-                   f"{_range_text(lo, hi, lo_open, hi_open)}{_unit(unit)}")
-    return int(value) if integer else float(value)
-
-
-@dataclass
-class _Ctx:
-    file: str
-    base_dir: Path
-
-    def error(self, message: str, line: int | None, key: str | None) -> ConfigError:
-        return ConfigError(message, file=self.file, line=line, key=key)
+MAX_POSITION_MM = MAX_POSITION
 
 
 # -- the scenario ------------------------------------------------------------------------
@@ -287,17 +123,17 @@ _MODES = {"absolute": Mode.ABSOLUTE, "relative": Mode.RELATIVE}
 _PARAM_MSG = re.compile(r"^(?:limit |rate )?(\w+) \(=")
 
 
-def _param_error(node: _Node, exc: ParameterError, fields: Iterable[str]) -> ConfigError:
+def _param_error(node: Section, exc: ParameterError, fields: Iterable[str]) -> ConfigError:
     """A core ParameterError located at the value it names (else at the section)."""
     m = _PARAM_MSG.match(str(exc))
     name = m.group(1) if m else None
     if name in fields and node.has(name):
         return node.error(name, str(exc))
-    return node.ctx.error(str(exc), node.line, node.path or None)
+    return node.fail(str(exc), node.head, node.path or None)
 
 
-def _limits(node: _Node, key: str, default: Limits | None) -> Limits | None:
-    sec = node.section(key)
+def _limits(node: Section, key: str, default: Limits | None) -> Limits | None:
+    sec = node.optional_section(key)
     if sec is None:
         return default
     sec.check_keys(("vel", "acc", "jerk"))
@@ -305,7 +141,7 @@ def _limits(node: _Node, key: str, default: Limits | None) -> Limits | None:
     units = {"vel": f"{unit}/s", "acc": f"{unit}/s^2", "jerk": f"{unit}/s^3"}
     values = {}
     for f in ("vel", "acc", "jerk"):
-        dflt = getattr(default, f) if default is not None else _MISSING
+        dflt = getattr(default, f) if default is not None else MISSING
         values[f] = sec.number(f, dflt, unit=units[f])
     try:
         return Limits(**values)
@@ -313,7 +149,7 @@ def _limits(node: _Node, key: str, default: Limits | None) -> Limits | None:
         raise _param_error(sec, exc, ("vel", "acc", "jerk")) from exc
 
 
-def _tracker_params(node: _Node) -> TrackerParams:
+def tracker_params(node: Section) -> TrackerParams:
     node.check_keys(_PARAM_FIELDS)
     kw: dict[str, Any] = {}
     kw["sample_time_s"] = node.number("sample_time_s", unit="s")
@@ -335,7 +171,7 @@ def _tracker_params(node: _Node) -> TrackerParams:
         elif isinstance(mode, int) and not isinstance(mode, bool) and mode in (3, 5):
             kw["mode"] = Mode(mode)
         else:
-            raise node.error("mode", f"must be 3 | 5 | absolute | relative, got {_describe(mode)}")
+            raise node.error("mode", f"must be 3 | 5 | absolute | relative, got {describe(mode)}")
     for key in _LIMIT_KEYS:  # robot_max_* first: the sync/de-sync values start at them
         default = _PARAM_FIELDS[key].default
         if key in ("sync_trans", "desync_trans"):
@@ -344,7 +180,7 @@ def _tracker_params(node: _Node) -> TrackerParams:
             default = kw.get("robot_max_rot", DEFAULT_ROT)
         if node.has(key):
             kw[key] = _limits(node, key, default if isinstance(default, Limits) else None)
-    rates = node.section("rates")
+    rates = node.optional_section("rates")
     if rates is not None:
         rates.check_keys(("vel", "acc", "dec", "jerk"))
         values = {k: rates.number(k, 100.0, unit="%") for k in ("vel", "acc", "dec", "jerk")}
@@ -360,7 +196,7 @@ def _tracker_params(node: _Node) -> TrackerParams:
         kw["max_flops"] = node.number("max_flops", integer=True)
     if node.has("desync_from_current_acceleration"):
         kw["desync_from_current_acceleration"] = node.boolean("desync_from_current_acceleration")
-    sm = node.section("softmc")
+    sm = node.optional_section("softmc")
     if sm is not None:
         sm.check_keys(_SOFTMC_KEYS)
         base = SoftMcOptions.literal() if sm.boolean("literal", False) else SoftMcOptions()
@@ -373,8 +209,8 @@ def _tracker_params(node: _Node) -> TrackerParams:
 
 
 
-def _unit_vector(node: _Node, key: str, default: Any) -> tuple[float, float, float]:
-    v = node.vector(key, default)
+def unit_vector(node: Section, key: str, default: Any) -> tuple[float, float, float]:
+    v = node.xyz(key, default)
     n = math.hypot(v[0], v[1], v[2])  # (no overflow for components of 1e300)
     if n == 0.0:
         raise node.error(key, "must not be the zero vector")
@@ -384,25 +220,25 @@ def _unit_vector(node: _Node, key: str, default: Any) -> tuple[float, float, flo
 _SEGMENT_KINDS = ("velocity", "acceleration", "speed_change")
 
 
-def _segment_master(node: _Node) -> SegmentMaster:
+def segment_master(node: Section) -> SegmentMaster:
     node.check_keys(("position", "c", "direction", "initial_speed", "c_rate", "segments"))
-    d = _unit_vector(node, "direction", (1.0, 0.0, 0.0))
+    d = unit_vector(node, "direction", (1.0, 0.0, 0.0))
     segments: list[Segment] = []
-    items = node.items("segments")
+    items = node.list("segments")
     if not items:
         raise node.error("segments", "must list at least one segment")
     for value, line, path in items:
-        seg = _Node(node.ctx, value, path, line)
+        seg = node.child(value, path, line)
         seg.check_keys(("duration_s", "direction", "c_rate") + _SEGMENT_KINDS)
         kinds = [k for k in _SEGMENT_KINDS if seg.has(k)]
         if len(kinds) > 1:
             raise seg.error(kinds[1], f"a segment has at most one of {', '.join(_SEGMENT_KINDS)}"
                                       f" (this one has {' and '.join(kinds)})")
         kind = kinds[0] if kinds else "hold"
-        d = _unit_vector(seg, "direction", d)
+        d = unit_vector(seg, "direction", d)
         c_rate = seg.number("c_rate", None, unit="deg/s")
-        common = dict(direction=d, c_rate=c_rate, line=seg.line, path=path,
-                      key_lines=dict(getattr(seg.m, "value_lines", {})))
+        common = dict(direction=d, c_rate=c_rate, line=seg.head, path=path,
+                      key_lines=dict(getattr(seg.data, "value_lines", {})))
         if kind == "speed_change":
             sc = seg.section("speed_change")
             sc.check_keys(("to", "acc", "jerk"))
@@ -421,18 +257,6 @@ def _segment_master(node: _Node) -> SegmentMaster:
                                 unit="mm/s")
     c_rate = node.number("c_rate", first.c_rate if first.c_rate is not None else 0.0,
                          unit="deg/s")
-    return SegmentMaster(node.vector("position", (0.0, 0.0, 0.0), unit="mm"),
+    return SegmentMaster(node.xyz("position", (0.0, 0.0, 0.0), unit="mm"),
                          node.number("c", 0.0, unit="deg"), initial_speed, first.direction, c_rate,
                          tuple(segments))
-
-
-
-# public names (the private ones are this module's own spelling)
-MISSING = _MISSING
-Node = _Node
-Ctx = _Ctx
-check_number = _check_number
-describe = _describe
-tracker_params = _tracker_params
-unit_vector = _unit_vector
-segment_master = _segment_master

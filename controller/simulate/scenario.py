@@ -125,24 +125,14 @@ from typing import Any
 from ..errors import ConfigError
 from ..tracking import MotionState, TrackerParams
 from ..tracking.conditioning import ConditionerDesign
-from ..yamlmarks import MarkedList, MarkedMap, closest, load_marked, read_text
+from ..yamlmarks import (MarkedList, MarkedMap, Section, check_number, closest, load_marked, read_text)
 from .master import SegmentError, build_profile
-from .reading import (MAX_POSITION_MM, MAX_SAMPLES, MISSING, CsvMaster, Ctx, EncoderSpec,
-                      Node, SampledRun, Segment, SegmentMaster, check_number, describe,
-                      segment_master, tracker_params, unit_vector)
+from .reading import (MAX_POSITION_MM, MAX_SAMPLES, CsvMaster, EncoderSpec, SampledRun,
+                      Segment, SegmentMaster, segment_master, tracker_params)
 
 __all__ = ["ConditioningSpec", "CsvMaster", "EncoderSpec", "Scenario", "Segment", "SegmentMaster", "load_scenario",
            "MAX_SAMPLES", "MAX_POSITION_MM"]
 
-# this module's short spellings of the shared readers (controller.simulate.reading)
-_MISSING = MISSING
-_Node = Node
-_Ctx = Ctx
-_check_number = check_number
-_describe = describe
-_tracker_params = tracker_params
-_unit_vector = unit_vector
-_segment_master = segment_master
 _Mapping = MarkedMap
 _Sequence = MarkedList
 _load_yaml = load_marked
@@ -190,11 +180,11 @@ class Scenario(SampledRun):
 # -- parsing -----------------------------------------------------------------------------
 _TOP_KEYS = ("name", "duration_s", "engage", "disengage", "tracker", "robot", "master",
              "estimator", "conditioning")
-def _robot(node: _Node) -> MotionState:
+def _robot(node: Section) -> MotionState:
     node.check_keys(("position", "c", "velocity", "acceleration", "c_rate", "c_acceleration"))
     zero = (0.0, 0.0, 0.0)
-    return MotionState(node.vector("position", unit="mm"), node.vector("velocity", zero),
-                       node.vector("acceleration", zero), node.number("c", 0.0, unit="deg"),
+    return MotionState(node.xyz("position", unit="mm"), node.xyz("velocity", zero),
+                       node.xyz("acceleration", zero), node.number("c", 0.0, unit="deg"),
                        node.number("c_rate", 0.0, unit="deg/s"),
                        node.number("c_acceleration", 0.0, unit="deg/s^2"))
 
@@ -204,13 +194,13 @@ _CSV_ALIASES = {"t": "time_s", "time": "time_s", "x_mm": "x", "y_mm": "y", "z_mm
                 "c_deg": "c"}
 
 
-def _csv_master(node: _Node) -> CsvMaster:
+def _csv_master(node: Section) -> CsvMaster:
     node.check_keys(("csv", "window"))
     name = node.string("csv")
     window = node.number("window", 16, lo=3, hi=10000, integer=True)
     path = Path(name)
     if not path.is_absolute():
-        path = node.ctx.base_dir / path
+        path = node.base_dir / path
     try:
         text = read_text(path)
     except OSError as exc:
@@ -294,7 +284,7 @@ def _csv_master(node: _Node) -> CsvMaster:
                      window)
 
 
-def _estimator(node: _Node) -> EncoderSpec:
+def _estimator(node: Section) -> EncoderSpec:
     node.check_keys(("quantisation_mm", "quantisation_deg", "delay_samples", "window",
                      "lead_samples", "degree"))
     delay = node.number("delay_samples", 1, lo=0, hi=1000, integer=True)
@@ -307,7 +297,7 @@ def _estimator(node: _Node) -> EncoderSpec:
         degree=node.number("degree", 2, lo=1, hi=2, integer=True))
 
 
-def _conditioning(node: _Node) -> ConditioningSpec:
+def _conditioning(node: Section) -> ConditioningSpec:
     node.check_keys(("resolution_mm", "resolution_deg", "latency_samples", "jitter", "design",
                      "jerk_reserve", "outlier_mm", "max_outliers", "seed"))
     design = ConditionerDesign.KINEMATIC
@@ -331,57 +321,58 @@ def _conditioning(node: _Node) -> ConditioningSpec:
         seed=node.number("seed", 0, lo=0, hi=2 ** 31, integer=True))
 
 
-def _times(node: _Node, key: str, duration_s: float, required: bool) -> tuple[float, ...]:
+def _times(node: Section, key: str, duration_s: float, required: bool) -> tuple[float, ...]:
     if not node.has(key):
         if required:
             node.raw(key)
         return ()
     value = node.raw(key)
     if isinstance(value, list):
-        items = node.items(key)
+        items = node.list(key)
     else:
-        items = [(value, node.line_of(key), node.key(key))]
+        items = [(value, node.value_line(key), node.key_path(key))]
     times = []
     for v, line, path in items:
-        times.append(_check_number(
-            v, lambda msg, line=line, path=path: node.ctx.error(msg, line, path),
+        times.append(check_number(
+            v, lambda msg, line=line, path=path: node.fail(msg, line, path),
             lo=0.0, hi=duration_s, hi_open=True, unit="s (the scenario's duration)"))
     return tuple(times)
 
 
-def _parse(data: Any, ctx: _Ctx, source: Path | None) -> Scenario:
-    root = _Node(ctx, data, "", 1 if isinstance(data, (_Mapping, _Sequence)) else None)
-    if "cell" in root.m:
+def _parse(data: Any, file: str, base_dir: Path, source: Path | None) -> Scenario:
+    root = Section(data, file, "", 1 if isinstance(data, (_Mapping, _Sequence)) else None,
+                   base_dir=base_dir, root="the scenario")
+    if "cell" in root.data:
         # several frames and robots, item sensors, timed MasterFrame changes
         from .cell import parse_cell
 
-        return parse_cell(root, ctx, source)
-    if "conveyor" in root.m:
+        return parse_cell(root, source)
+    if "conveyor" in root.data:
         # a conveyor scenario (moving frame, items, robot program): controller.simulate.conveyor
         from .conveyor import parse_conveyor
 
-        return parse_conveyor(root, ctx, source)
+        return parse_conveyor(root, source)
     root.check_keys(_TOP_KEYS)
     name = root.string("name", "")
-    params = _tracker_params(root.section("tracker", required=True))
-    robot = _robot(root.section("robot", required=True))
-    mnode = root.section("master", required=True)
+    params = tracker_params(root.section("tracker"))
+    robot = _robot(root.section("robot"))
+    mnode = root.section("master")
     if mnode.has("csv") and mnode.has("segments"):
         raise mnode.error("csv", "give either segments or csv, not both")
     if mnode.has("csv"):
         master: SegmentMaster | CsvMaster = _csv_master(mnode)
         end_s = master.time_s[-1]
     elif mnode.has("segments"):
-        master = _segment_master(mnode)
+        master = segment_master(mnode)
         try:
             end_s = build_profile(master).end_s
         except SegmentError as exc:
             seg = master.segments[exc.index]
-            raise ctx.error(exc.message, seg.key_lines.get(exc.key, seg.line),
+            raise root.fail(exc.message, seg.key_lines.get(exc.key, seg.line),
                             f"{seg.path}.{exc.key}") from None
     else:
-        raise mnode.ctx.error("required key missing in 'master': segments or csv",
-                              mnode.line, mnode.key("segments"))
+        raise mnode.fail("required key is missing in 'master': segments or csv",
+                         mnode.head, mnode.key_path("segments"))
     T = params.sample_time_s
     duration = root.number("duration_s", None, lo=0.0, lo_open=True, unit="s")
     if duration is None:
@@ -405,11 +396,11 @@ def _parse(data: Any, ctx: _Ctx, source: Path | None) -> Scenario:
         if kind != expected or (k >= n):
             key = f"{kind}[{i}]" if isinstance(root.raw(kind), list) else kind
             lines = getattr(root.raw(kind), "item_lines", None)
-            line = lines[i] if lines else root.line_of(kind)
+            line = lines[i] if lines else root.value_line(kind)
             why = (f"acts after the last sample (sample {k} of {n})" if k >= n else
                    "engage and disengage times must alternate, engage first, at least one "
                    "sample apart: engage[0] < disengage[0] < engage[1] < ...")
-            raise ctx.error(why, line, key)
+            raise root.fail(why, line, key)
         expected = "disengage" if kind == "engage" else "engage"
     estimator = _estimator(root.section("estimator")) if root.has("estimator") else None
     conditioning = None
@@ -437,13 +428,13 @@ def load_scenario(source: str | Path | dict, *, base_dir: str | Path | None = No
     file its own directory).  Raises :class:`ConfigError` naming the file, line and key.
     """
     if isinstance(source, dict):
-        ctx = _Ctx("<scenario>", Path(base_dir) if base_dir is not None else Path.cwd())
-        return _parse(source, ctx, None)
+        return _parse(source, "<scenario>",
+                      Path(base_dir) if base_dir is not None else Path.cwd(), None)
     path = Path(source)
     text = read_text(path)  # OSError propagates (the CLI reports it)
-    ctx = _Ctx(str(path), Path(base_dir) if base_dir is not None else path.parent)
     data = _load_yaml(text, str(path))
     if data is None:
         raise ConfigError("the scenario file is empty", file=str(path), line=1)
-    scenario = _parse(data, ctx, path)
+    scenario = _parse(data, str(path), Path(base_dir) if base_dir is not None
+                      else path.parent, path)
     return scenario
