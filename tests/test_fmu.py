@@ -153,6 +153,15 @@ def test_model_description_contract(tracker_fmu):
         "imfs": ("output", "discrete", "Integer", None, None),
         "state": ("output", "discrete", "Integer", None, None),
         "error": ("output", "discrete", "Integer", None, None),
+        "master_input": ("parameter", "fixed", "Enumeration", 0, None),
+        "encoder_resolution": ("parameter", "fixed", "Real", 0, "mm"),
+        "encoder_resolution_rot": ("parameter", "fixed", "Real", 0, "deg"),
+        "encoder_latency": ("parameter", "fixed", "Integer", 0, None),
+        "jerk_max_master": ("parameter", "fixed", "Real", 1000, "mm/s3"),
+        "encoder_outlier": ("parameter", "fixed", "Real", 0, "mm"),
+        "encoder_max_outliers": ("parameter", "fixed", "Integer", 10, None),
+        "master_status": ("output", "discrete", "Integer", None, None),
+        "master_outliers": ("output", "discrete", "Integer", None, None),
     }
     for name, (causality, variability, typ, start, unit) in expect.items():
         x = v[name]
@@ -169,9 +178,14 @@ def test_model_description_contract(tracker_fmu):
     assert all(x.unit for x in md.modelVariables if x.type == "Real")
     assert "2 SYNCED" in v["state"].description and "-1 DESYNCING" in v["imfs"].description
     assert "1 MASTER_VELOCITY" in v["error"].description
+    (inp_type,) = [t for t in md.typeDefinitions if t.name == "MasterInput"]
+    assert [(i.name, int(i.value)) for i in inp_type.items] == [("state", 0), ("encoder", 1)]
+    assert "1 OK" in v["master_status"].description
     outputs = [x for x in md.modelVariables if x.causality == "output"]
-    assert len(outputs) == 15
+    assert len(outputs) == 17
     assert {u.variable.name for u in md.initialUnknowns} == {x.name for x in outputs}
+    deps = {u.variable.name: [d.name for d in u.dependencies] for u in md.initialUnknowns}
+    assert deps["master_status"] == ["master_input"] and deps["x"] == ["x0"]
 
 
 def test_fmpy_validate(fmu_dir):
@@ -574,8 +588,7 @@ def test_bundled_core_runs_standalone(tracker_fmu, tmp_path):
             ints = s.getInteger([vr[n] for n in ("imfs", "state", "error")])
             assert got == exp["reals"][k] and ints == exp["ints"][k], (k, got, exp["reals"][k])
         s.terminate()
-        s.freeInstance()  # an importer frees its instances (a live one at exit keeps ruckig
-                          # objects that nanobind reports while Python finalises)
+        s.freeInstance()  # (a host exiting without it: test_fmu_robustness)
         print("OK", sys.modules[private[0]].__file__)
     """)
     proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
@@ -621,7 +634,8 @@ def test_build_from_a_regular_install(tmp_path):
 def test_non_python_host(tracker_fmu, tmp_path):
     """fmu/c_host/fmi2_host.c (a C importer) runs the FMU with no LD_PRELOAD, PYTHONHOME or
     PYTHONPATH: the FMU's front library loads libpython (pythonfmu's wrapper alone fails
-    with "undefined symbol: _Py_NoneStruct", pythonfmu #202)."""
+    with "undefined symbol: _Py_NoneStruct", pythonfmu #202); it also ends cleanly when it
+    exits with the instance alive."""
     import shutil
 
     gcc = shutil.which("gcc") or shutil.which("cc")
@@ -656,6 +670,15 @@ def test_non_python_host(tracker_fmu, tmp_path):
     ref = core_run(params_for(planner=planner), scenario, n)
     assert [[float(x) for x in r[:12]] for r in rows] == ref.reals
     assert [[int(x) for x in r[12:]] for r in rows] == ref.ints
+    # the same host exiting with its instance alive (no fmi2Terminate / fmi2FreeInstance):
+    # pythonfmu's wrapper finalises the Python it started as the process ends; the FMU's
+    # exit hook has released the trackers first, so nothing is reported leaked or aborts
+    proc = subprocess.run([*args, "live"], env=env, capture_output=True, text=True,
+                          timeout=300)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert len(proc.stdout.splitlines()) == n
+    for word in ("nanobind", "leaked", "bort", "corrupted", "Segmentation", "Fatal Python"):
+        assert word not in proc.stderr, proc.stderr[-2000:]
 
 
 # -- CLI -----------------------------------------------------------------------------------------

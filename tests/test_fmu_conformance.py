@@ -246,10 +246,11 @@ def test_fmi3_output_dependencies_and_internal_step(fmu3_path):
     cs = root.find("CoSimulation")
     assert float(cs.get("fixedInternalStepSize")) == DEFAULTS["sample_time"]
     outputs = root.find("ModelStructure").findall("Output")
-    assert len(outputs) == 15 and all(o.get("dependencies") == "" for o in outputs)
+    assert len(outputs) == 17 and all(o.get("dependencies") == "" for o in outputs)
     initial = {int(u.get("valueReference")): u.get("dependencies")
                for u in root.find("ModelStructure").findall("InitialUnknown")}
     vr = {row[0]: i for i, row in enumerate(VARIABLES)}
     assert initial[vr["x"]] == str(vr["x0"]) and initial[vr["vx"]] == ""
+    assert initial[vr["master_status"]] == str(vr["master_input"])
     md = read_model_description(str(fmu3_path))
     assert float(md.defaultExperiment.stopTime) == 1.0

@@ -105,10 +105,62 @@ def test_fmusim_tracker_equals_core(fmi_tools, fmu2_path, fmu3_path, tmp_path, n
     res = _fmusim(fmi_tools, fmu, out, STOP_TIME_S, CROSSCHECK_INPUT)
     assert res.returncode == 0, res.stdout + res.stderr
     header, rows = _read(out)
-    assert header == ["time", *OUTPUT_REALS, *OUTPUT_INTS]
+    assert header == ["time", *OUTPUT_REALS, *OUTPUT_INTS, "master_status", "master_outliers"]
     ref = _tracker_reference()
     assert _compare(header, rows, ref, _times(STOP_TIME_S)) == []
     assert {int(r[header.index("state")]) for r in rows} >= {1, 2, 3}  # synced, de-synced
+
+
+@pytest.mark.parametrize("name", ["CanTracker", "CanTracker3"])
+def test_fmusim_raw_encoder_input_equals_the_simulator(fmi_tools, fmu2_path, fmu3_path,
+                                                      tmp_path, name):
+    """fmusim with master_input=1 and the encoder parameters as start values, the raw
+    (quantised, 2-sample-old) encoder positions of an S-curve belt as its input file: the
+    setpoints of the simulator's ``conditioning:`` run (tests/test_conditioning_shells.py)."""
+    pytest.importorskip("ruckig")
+    from test_conditioning_shells import RES_DEG, Q, _encoder_start, _sim_warm, fmu_scenario
+    from test_conditioning_shells import T as T_ENC
+
+    from controller.simulate import load_scenario
+    from controller.simulate.master import _quantise, build_profile
+    from controller.simulate.runner import simulate
+
+    sc = load_scenario(fmu_scenario())
+    res = simulate(sc)
+    warm, prof = _sim_warm(sc), build_profile(sc.master)
+    L, ke = sc.conditioning.latency_samples, sc.engage_samples[0]
+    n = warm + sc.n_samples
+    inputs = tmp_path / "encoder_in.csv"
+    with inputs.open("w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["time", "master_x", "master_c", "engage"])
+        for j in range(n + 1):
+            st = prof.state((j - warm - L) * T_ENC)
+            w.writerow([repr(j * T_ENC), repr(_quantise(st.pos[0], Q)),
+                        repr(_quantise(st.ang, RES_DEG)), int(j - warm > ke)])
+    fmu = fmu2_path if name == "CanTracker" else fmu3_path
+    out = tmp_path / "out.csv"
+    starts = []
+    for key, value in _encoder_start(L).items():
+        starts += ["--start-value", key, repr(value)]
+    res_sim = subprocess.run(
+        [str(fmi_tools.fmusim), "--interface-type", "cs", "--start-time", "0", "--stop-time",
+         repr(n * T_ENC), "--output-interval", repr(T_ENC), "--output-file", str(out),
+         "--input-file", str(inputs), *starts, str(fmu)],
+        capture_output=True, text=True, timeout=600, env=_bare_env())
+    assert res_sim.returncode == 0, res_sim.stdout + res_sim.stderr
+    header, rows = _read(out)
+    col = {c: i for i, c in enumerate(header)}
+    assert len(rows) == n + 1
+    for k in range(1, sc.n_samples):
+        r = rows[warm + k + 1]  # row i: time i*T, after the step from (i-1)*T
+        for i, axis in enumerate("xyz"):
+            assert _close(r[col[axis]], float(res.setpoint_pos[k][i])), (k, axis)
+            assert _close(r[col["v" + axis]], float(res.setpoint_vel[k][i])), (k, axis)
+        assert _close(r[col["c"]], float(res.setpoint_ang[k])), k
+        assert int(r[col["state"]]) == res.state[k], k
+    assert {int(s) for s in res.state} >= {1, 2}
+    assert int(rows[-1][col["master_status"]]) == 1 and int(rows[-1][col["master_outliers"]]) == 0
 
 
 def _conveyor_reference(stop: float) -> dict[str, list[float]]:

@@ -1,11 +1,15 @@
 """CanTracker.fmu (FMI 2) and CanTracker3.fmu (FMI 3) against importer mistakes: non-finite
-master inputs, fixed parameters set after initialisation; units and bounds of the model
-description; ``cantrack fmu check`` on the FMI 3 FMU; where errors are logged."""
+master inputs, fixed parameters set after initialisation, a host exiting with a live
+instance; units and bounds of the model description; ``cantrack fmu check`` on the FMI 3
+FMU; where errors are logged."""
 
 from __future__ import annotations
 
 import logging
 import math
+import subprocess
+import sys
+import textwrap
 
 import pytest
 
@@ -174,3 +178,64 @@ def test_check_runs_smoke_cosimulation_on_fmi3(fmu3_path):
         assert items[name].ok is True, report.format()
     assert "fmi3Discard" in items["step-size refusal"].detail
     assert report.summary.startswith("FMI 3.0 Co-Simulation") and report.passed
+
+
+# -- a host that exits with a live instance ------------------------------------------------
+#: what the process's stderr must not contain when it ends (nanobind's report of objects
+#: alive at its module's teardown, glibc's and CPython's abort messages)
+EXIT_TROUBLE = ("nanobind", "leaked", "Abort", "abort", "corrupted", "Segmentation",
+                "Fatal Python error", "double free")
+
+
+def _optimal_available() -> bool:
+    try:
+        import controller.tracking.optimal  # noqa: F401
+    except Exception:
+        return False
+    return True
+
+
+@pytest.mark.parametrize("master_input", [0, 1])
+def test_host_exiting_with_a_live_instance_ends_cleanly(fmu_path, tmp_path, master_input):
+    """A Python host (fmpy) that instantiates, steps through the approach into SYNCED (the
+    optimal planner's ruckig objects alive; with master_input=1 the conditioners too) and
+    exits without terminate/freeInstance: exit status 0, nothing on stderr about leaked
+    objects or an abort (the runtime's exit hook releases the live engines while the
+    interpreter still works)."""
+    if not _optimal_available():
+        pytest.skip("needs ruckig: the live objects at exit are the optimal planner's")
+    script = textwrap.dedent(f"""
+        from fmpy import extract, read_model_description
+        from fmpy.fmi2 import FMU2Slave
+        from fmpy.fmi3 import FMU3Slave
+        fmu = {str(fmu_path)!r}
+        md = read_model_description(fmu)
+        vr = {{v.name: v.valueReference for v in md.modelVariables}}
+        fmi3 = md.fmiVersion.startswith("3")
+        s = (FMU3Slave if fmi3 else FMU2Slave)(
+            guid=md.guid, unzipDirectory=extract(fmu),
+            modelIdentifier=md.coSimulation.modelIdentifier, instanceName="live")
+        s.instantiate()
+        if fmi3:
+            s.enterInitializationMode(startTime=0.0)
+            s.setInt64([vr["master_input"]], [{master_input}])
+        else:
+            s.setupExperiment(startTime=0.0)
+            s.enterInitializationMode()
+            s.setInteger([vr["master_input"]], [{master_input}])
+        s.exitInitializationMode()
+        set_real = s.setFloat64 if fmi3 else s.setReal
+        get_int = s.getInt32 if fmi3 else s.getInteger
+        for k in range(400):
+            t = k * 0.001
+            set_real([vr["master_x"], vr["master_vx"]], [100.0 + 300.0 * t, 300.0])
+            s.setBoolean([vr["engage"]], [t >= 0.05])
+            s.doStep(t, 0.001)
+        print("state", get_int([vr["state"]])[0], flush=True)
+    """)
+    proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
+                          cwd=tmp_path, timeout=120)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    assert "state 2" in proc.stdout, proc.stdout  # SYNCED: the planner's objects were made
+    trouble = [w for w in EXIT_TROUBLE if w in proc.stderr]
+    assert trouble == [], proc.stderr[-3000:]

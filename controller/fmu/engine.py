@@ -21,13 +21,36 @@ internal sample time t + i*T, i = 1..n; the tracker computes the setpoint of tha
 (``Tracker.update``).  The outputs at the end of the step are the setpoint at t + n*T.
 Before the first step the outputs are the robot at (x0, y0, z0, c0), at rest, state OFF.
 
+Raw encoder input (``master_input=1``, docs/spec/master-conditioning.md): master_x,
+master_y, master_z [mm] and master_c [deg] are what a conveyor encoder gives -- positions in
+counts of ``encoder_resolution`` (``encoder_resolution_rot``), sampled ``encoder_latency``
+samples before the step start -- and the velocity and acceleration inputs are not used.
+Each axis has a ``MasterConditioner`` (Kalman estimator on the constant-jerk model, outlier
+gate, coasting, output within the frame's VelocityMax/AccelerationMax/JerkMax =
+vel_max_master/acc_max_master/jerk_max_master at exitInitializationMode; for the rotation
+the core's default master_max_rot), made at exitInitializationMode: it gets the step's
+positions at the step's first internal sample and coasts over the others (one encoder
+sample per communication step), and gives the tracker the belt's position, velocity,
+acceleration and jerk at each setpoint's time (lag compensated by prediction).  The same
+conditioner as the simulator's ``conditioning:`` section (latency_samples =
+encoder_latency + 1) and the CAN shell's ``conveyor.conditioning``: for the same samples
+the setpoints are bit-identical (tests/test_conditioning_shells.py).  Outputs:
+``master_status`` (0 STARTING: warming up, 1 OK, 2 COASTING: the step's sample was rejected,
+3 LOST; the worst axis) and ``master_outliers`` (samples rejected so far).  A rising edge of
+``engage`` while the status is 0 or 3 waits (one warning) and acts at the first step after
+the status is 1 or 2.  ``encoder_max_outliers`` outliers in a row are a lost master: a
+tracking tracker de-syncs with error MASTER_LOST (one warning naming the axis and the size),
+and the conditioner starts again from the next sample.  ``master_input=0`` (the default):
+the master's state as below, master_status 1.
+
 Engage: a rising edge of ``engage`` (seen at a step start, compared with the value at the
 previous step start; ``false`` before the first step) creates a new ``Tracker`` from the
 current parameters, starting from the current setpoint, and engages it with ``mode``; a
 falling edge starts the de-sync.  Both act at the first internal sample of the step.  So
 tunable parameters take effect at the next engage.
 
-Fixed parameters (``variability=fixed``: sample_time, mode, planner, x0, y0, z0, c0) are
+Fixed parameters (``variability=fixed``: sample_time, mode, planner, x0, y0, z0, c0, the
+master input and encoder parameters) are
 frozen at exitInitializationMode; every engage uses the frozen values plus the current
 tunables.  Setting a fixed parameter afterwards is refused: logged as an error naming the
 variable and the value (the call returns Error through the front library; an exception
@@ -69,11 +92,13 @@ exception into ``Fatal`` and then crashes the process on ``Terminate`` / ``FreeI
 
 from __future__ import annotations
 
+import copy
 import logging
 import math
 import pickle
 import traceback
 from collections.abc import Callable
+from enum import IntEnum
 from operator import itemgetter
 
 from ..errors import ParameterError
@@ -89,8 +114,16 @@ from ..tracking import (
     TrackState,
 )
 from ..tracking import softmc as _softmc  # noqa: F401  (import eagerly, see below)
+from ..tracking.conditioning import (
+    ConditionedMaster,
+    ConditioningParams,
+    EncoderModel,
+    EventKind,
+    MasterConditioner,
+    MasterStatus,
+)
 from ..tracking.types import MAX_FACTOR
-from .runtime import EngineStateMixin
+from .runtime import EngineStateMixin, track_instance
 
 __all__ = ["EngineStateMixin", "TrackerEngine", "VARIABLES", "VR", "tracker_params"]
 
@@ -115,6 +148,18 @@ STEP_TOLERANCE = 1e-6
 STATE_FORMAT = 1
 
 _DEFAULTS = TrackerParams()
+
+
+class MasterInput(IntEnum):
+    """What the master inputs carry (parameter ``master_input``)."""
+
+    STATE = 0  #: the master's position, velocity and acceleration at the step start
+    ENCODER = 1  #: raw encoder positions, through the master conditioner
+
+
+#: the largest ``encoder_latency`` [samples]: the conditioner's latency is one more (the
+#: step's first setpoint is one sample after the step start) and at most 100
+MAX_ENCODER_LATENCY = 99
 
 
 def _enum_doc(enum) -> str:
@@ -241,6 +286,40 @@ VARIABLES: list[tuple] = [
      "Tracker state: " + _enum_doc(TrackState), {}),
     ("error", "Integer", "output", "discrete", None, None,
      "Tracker error (kept until the next engage): " + _enum_doc(TrackError), {}),
+    # -- master conditioning (appended: the value references above stay as they were)
+    ("master_input", "Integer", "parameter", "fixed", int(MasterInput.STATE), None,
+     "What the master inputs are: 0 state (master_x..master_ac: the master's position, "
+     "velocity and acceleration); 1 encoder (master_x, master_y, master_z, master_c: raw "
+     "encoder positions, the velocity and acceleration inputs unused, through the master "
+     "conditioner of docs/spec/master-conditioning.md, one per axis)",
+     {"enumeration": "MasterInput"}),
+    ("encoder_resolution", "Real", "parameter", "fixed", 0.0, "mm",
+     "master_input=1: one count of the raw positions master_x/y/z (0: not quantised)",
+     {"min": "0", "max": "1000"}),
+    ("encoder_resolution_rot", "Real", "parameter", "fixed", 0.0, "deg",
+     "master_input=1: one count of the raw angle master_c (0: not quantised)",
+     {"min": "0", "max": "360"}),
+    ("encoder_latency", "Integer", "parameter", "fixed", 0, None,
+     "master_input=1: age of the raw positions at the step start in samples (0: sampled "
+     "at the step start); the conditioner predicts them to each setpoint's time",
+     {"min": "0", "max": str(MAX_ENCODER_LATENCY)}),
+    ("jerk_max_master", "Real", "parameter", "fixed", _DEFAULTS.master_max_trans.jerk,
+     "mm/s3", "MF.JerkMaxTrans: the conveyor's jerk envelope; with vel_max_master and "
+     "acc_max_master (values at exitInitializationMode) the conditioner's envelope "
+     "(master_input=1)", {**_POSITIVE, "max": "1e9"}),
+    ("encoder_outlier", "Real", "parameter", "fixed", 0.0, "mm",
+     "master_input=1: outlier gate base (a sample further than this plus JerkMax*dt^3/6 "
+     "from the prediction is rejected); 0: max(0.25 mm, 5 counts)",
+     {"min": "0", "max": "1000000"}),
+    ("encoder_max_outliers", "Integer", "parameter", "fixed", 10, None,
+     "master_input=1: this many outliers in a row are a lost master (error "
+     f"{int(TrackError.MASTER_LOST)} MASTER_LOST, de-sync)", {"min": "1", "max": "100000"}),
+    ("master_status", "Integer", "output", "discrete", None, None,
+     "Conditioned master after the step's sample (master_input=1): " + _enum_doc(MasterStatus)
+     + " (the worst axis; an engage waits while 0 or 3); 1 with master_input=0", {}),
+    ("master_outliers", "Integer", "output", "discrete", None, None,
+     "Encoder samples rejected as outliers since initialisation, all axes (master_input=1)",
+     {}),
 ]
 
 #: value reference of each variable (its position in VARIABLES)
@@ -249,8 +328,10 @@ _MASTER = [VR[f"master_{n}"] for n in ("x", "y", "z", "vx", "vy", "vz", "ax", "a
                                       "c", "vc", "ac")]
 _get_master = itemgetter(*_MASTER)
 _OUT_FIRST = VR["x"]  # x y z c vx vy vz vc ax ay az ac imfs state error, contiguous
-assert [row[0] for row in VARIABLES[_OUT_FIRST:]] == [
+_OUT_END = VR["error"] + 1
+assert [row[0] for row in VARIABLES[_OUT_FIRST:_OUT_END]] == [
     "x", "y", "z", "c", "vx", "vy", "vz", "vc", "ax", "ay", "az", "ac", "imfs", "state", "error"]
+_VR_MSTATUS, _VR_MOUTLIERS = VR["master_status"], VR["master_outliers"]
 _PARAMETER_NAMES = [row[0] for row in VARIABLES if row[2] == "parameter"]
 #: fixed parameters: settable only until ``exitInitializationMode``
 _FIXED = [(i, row[0]) for i, row in enumerate(VARIABLES) if row[3] == "fixed"]
@@ -272,7 +353,8 @@ CACHED_INPUTS = [(i, row[1][0].lower()) for i, row in enumerate(VARIABLES)
 CACHED_OUTPUTS = [(i, row[1][0].lower()) for i, row in enumerate(VARIABLES)
                   if row[2] == "output"]
 #: outputs whose initial value depends on a parameter (InitialUnknowns dependencies)
-INITIAL_DEPENDENCIES = {"x": "x0", "y": "y0", "z": "z0", "c": "c0"}
+INITIAL_DEPENDENCIES = {"x": "x0", "y": "y0", "z": "z0", "c": "c0",
+                        "master_status": "master_input"}
 
 
 #: Enumeration types of the model description: name -> ((item name, value), ...).  ``mode``
@@ -280,6 +362,7 @@ INITIAL_DEPENDENCIES = {"x": "x0", "y": "y0", "z": "z0", "c": "c0"}
 #: values are exactly the accepted ones (an Integer 3..5 would declare 4 valid).
 ENUMERATIONS: dict[str, tuple[tuple[str, int], ...]] = {
     "Mode": (("absolute", int(Mode.ABSOLUTE)), ("relative", int(Mode.RELATIVE))),
+    "MasterInput": tuple((m.name.lower(), int(m)) for m in MasterInput),
 }
 
 
@@ -339,8 +422,48 @@ def tracker_params(v: dict) -> TrackerParams:
         damping_factor=float(v["damping_factor"]),
         max_flops=int(v["max_flops"]),
         master_max_trans=Limits(float(v["vel_max_master"]), float(v["acc_max_master"]),
-                                _DEFAULTS.master_max_trans.jerk),
+                                float(v.get("jerk_max_master",
+                                            _DEFAULTS.master_max_trans.jerk))),
     )
+
+
+def conditioners(v: dict, params: TrackerParams) -> tuple[MasterConditioner, ...] | None:
+    """The master conditioners (x, y, z, c) of ``master_input=1`` (else None) for a set of
+    FMU parameter values (by name) and the tracker parameters made of them.
+
+    The raw inputs at a step start t were sampled ``encoder_latency`` samples before t, and
+    the step's first setpoint is for t + T: the conditioner's latency is encoder_latency + 1
+    cycles and its lead 0 (its output is the belt at the setpoint's time; one conditioner
+    cycle per internal sample, docs/spec/master-conditioning.md#1).  Envelope: the moving
+    frame's VelocityMax/AccelerationMax/JerkMax (vel_max_master, acc_max_master,
+    jerk_max_master; the rotation's ``TrackerParams.master_max_rot``).  As the simulator's
+    ``conditioning:`` section builds them (controller.simulate.master), so both give the
+    same numbers for the same samples.
+    """
+    if MasterInput(int(v["master_input"])) != MasterInput.ENCODER:
+        return None
+    latency = int(v["encoder_latency"]) + 1
+    gate = float(v["encoder_outlier"])
+
+    def cparams(resolution: float, frame: Limits) -> ConditioningParams:
+        return ConditioningParams(params.sample_time_s, EncoderModel(resolution, latency), frame,
+                                  lead_samples=0.0, outlier_mm=gate if gate > 0.0 else None,
+                                  max_outliers=int(v["encoder_max_outliers"]))
+
+    trans = cparams(float(v["encoder_resolution"]), params.master_max_trans)
+    rot = cparams(float(v["encoder_resolution_rot"]), params.master_max_rot)
+    return (MasterConditioner(trans), MasterConditioner(trans), MasterConditioner(trans),
+            MasterConditioner(rot))
+
+
+#: ``master_status`` of several axes: the worst (LOST, then STARTING, COASTING, OK)
+_STATUS_RANK = {MasterStatus.OK: 0, MasterStatus.COASTING: 1, MasterStatus.STARTING: 2,
+                MasterStatus.LOST: 3}
+
+
+def combined_status(outs: tuple[ConditionedMaster, ...]) -> MasterStatus:
+    """The worst status of the axes' conditioned masters (``_STATUS_RANK``)."""
+    return max((o.status for o in outs), key=_STATUS_RANK.__getitem__)
 
 
 #: step outcomes and log levels (the FMI status values, the same in FMI 2 and FMI 3)
@@ -388,8 +511,16 @@ class TrackerEngine:
         self.engage_prev = False
         self.tracker: Tracker | None = None
         self.params: TrackerParams | None = None
+        #: the master conditioners (x, y, z, c) with master_input=1, else None
+        self.conditioners: tuple[MasterConditioner, ...] | None = None
+        #: the conditioned master is usable (warmed up, not lost) after the last step
+        self.master_ready = True
+        #: an engage edge is waiting for the conditioned master (its warning logged)
+        self.engage_held = False
         self.T = float(self.v[VR["sample_time"]])
         self._write_outputs(self._initial_setpoint(), 0, 0, 0)
+        self.v[_VR_MSTATUS], self.v[_VR_MOUTLIERS] = int(MasterStatus.OK), 0
+        track_instance(self)
 
     # -- logging ----------------------------------------------------------------------
     def report(self, msg: str, level: int = 3) -> None:
@@ -412,8 +543,9 @@ class TrackerEngine:
 
     def _write_outputs(self, sp: MotionState, imfs: int, state: int, error: int) -> None:
         p, vel, a = sp.pos, sp.vel, sp.acc
-        self.v[_OUT_FIRST:] = (p[0], p[1], p[2], sp.ang, vel[0], vel[1], vel[2], sp.ang_vel,
-                               a[0], a[1], a[2], sp.ang_acc, int(imfs), int(state), int(error))
+        self.v[_OUT_FIRST:_OUT_END] = (p[0], p[1], p[2], sp.ang, vel[0], vel[1], vel[2],
+                                       sp.ang_vel, a[0], a[1], a[2], sp.ang_acc, int(imfs),
+                                       int(state), int(error))
 
     def current_params(self) -> TrackerParams:
         """The fixed parameters as frozen at initialisation (current values before it) plus
@@ -484,9 +616,12 @@ class TrackerEngine:
         return [v[vr - BULK_BASE] for vr in vrs]
 
     def refresh_initial(self) -> None:
-        """Before initialisation ends the outputs follow x0..c0 (InitialUnknowns)."""
+        """Before initialisation ends the outputs follow x0..c0 and master_input
+        (InitialUnknowns)."""
         if self.tracker is None:
             self._write_outputs(self._initial_setpoint(), 0, 0, 0)
+            self.v[_VR_MSTATUS] = int(MasterStatus.STARTING if self.v[VR["master_input"]]
+                                      == MasterInput.ENCODER else MasterStatus.OK)
 
     def check(self, kind: str, vrs, settable: bool = False) -> None:
         """Raise TypeError naming the first reference that is not a (settable) ``kind``."""
@@ -531,6 +666,7 @@ class TrackerEngine:
                 raise ParameterError("; ".join(errors))
             params = self.current_params()
             tracker = Tracker(params, self._initial_setpoint())
+            conds = conditioners(values, params)
         except ParameterError as exc:
             self.failed = (f"{self.instance_name}: exitInitializationMode refused the "
                            f"parameters: {exc}")
@@ -540,9 +676,23 @@ class TrackerEngine:
             self.failed = self._log_error(f"initialisation failed: {exc}")
             return
         self.tracker, self.params, self.T = tracker, params, params.sample_time_s
+        self.conditioners = conds
+        self.master_ready = conds is None
+        self.engage_held = False
         self.engage_prev = False
         self.failed = None
         self._write_outputs(tracker.setpoint, tracker.imfs, tracker.state, tracker.error)
+        self.v[_VR_MSTATUS] = int(MasterStatus.OK if conds is None else MasterStatus.STARTING)
+        self.v[_VR_MOUTLIERS] = 0
+
+    def release(self) -> None:
+        """Drop the tracker and the conditioners (their planners hold ruckig objects): at
+        the host's interpreter exit for instances the host never freed (``runtime``), so
+        that no compiled object outlives the interpreter's own clean-up.  Later steps are
+        refused like after terminate."""
+        self.tracker = None
+        self.conditioners = None
+        self.terminated = True
 
     def do_step(self, current_time: float, step_size: float) -> int:
         """One communication step [current_time, current_time + step_size] [s].
@@ -616,15 +766,30 @@ class TrackerEngine:
         tracker = self.tracker
         v = self.v
         engage = bool(v[_VR_ENGAGE])
-        if engage != self.engage_prev:
-            if engage:
+        if engage != self.engage_prev or self.engage_held:
+            if engage and not self.master_ready:
+                # the conditioned master is not usable yet: the edge waits (engage_prev
+                # stays False, so the next step sees it again)
+                if not self.engage_held:
+                    self.engage_held = True
+                    self.report(f"{self.instance_name}: engage at t={self.time!r} s waits: "
+                                f"the conditioned master is "
+                                f"{MasterStatus(v[_VR_MSTATUS]).name} (master_status="
+                                f"{v[_VR_MSTATUS]}); it acts at the first step after "
+                                f"master_status is 1 or 2", WARNING)
+            elif engage:
                 params = self.current_params()  # may raise ParameterError: nothing changed yet
                 tracker = Tracker(params, tracker.setpoint)
                 tracker.engage()
                 self.tracker, self.params = tracker, params
-            else:
+                self.engage_prev, self.engage_held = True, False
+            elif self.engage_prev:
                 tracker.disengage()
-            self.engage_prev = engage
+                self.engage_prev = False
+            else:  # engage fell while it waited
+                self.engage_held = False
+        if self.conditioners is not None:
+            return self._step_encoder(n, tracker, master_values)
         mx, my, mz, mvx, mvy, mvz, max_, may, maz, mc, mvc, mac = master_values
         update = tracker.update
         if n == 1:
@@ -642,14 +807,65 @@ class TrackerEngine:
         sp = out.setpoint
         p, vel, a = sp.pos, sp.vel, sp.acc
         # the enums are ints (IntEnum): stored as they are
-        v[_OUT_FIRST:] = (p[0], p[1], p[2], sp.ang, vel[0], vel[1], vel[2], sp.ang_vel,
-                          a[0], a[1], a[2], sp.ang_acc, out.imfs, out.state, out.error)
+        v[_OUT_FIRST:_OUT_END] = (p[0], p[1], p[2], sp.ang, vel[0], vel[1], vel[2], sp.ang_vel,
+                                  a[0], a[1], a[2], sp.ang_acc, out.imfs, out.state, out.error)
+
+    def _step_encoder(self, n: int, tracker: Tracker | None, master_values: tuple) -> None:
+        """The samples of a step with raw encoder inputs (master_input=1): the step's
+        positions go to the conditioners at its first sample, the others coast (one sample
+        per communication step: docs/spec/master-conditioning.md#3.2); each sample's
+        conditioned belt (position..jerk at that setpoint's time) goes to the tracker.  A
+        lost master de-syncs with MASTER_LOST, as the CAN shell does."""
+        conds = self.conditioners
+        assert conds is not None and tracker is not None  # initialised: the caller checked
+        cx, cy, cz, cc = conds
+        raw = master_values[0], master_values[1], master_values[2], master_values[9]
+        update = tracker.update
+        for i in range(n):
+            if i == 0:
+                outs = (cx.update(raw[0]), cy.update(raw[1]), cz.update(raw[2]),
+                        cc.update(raw[3]))
+                status = combined_status(outs)
+                if status == MasterStatus.LOST:
+                    self._master_lost(tracker, outs)
+            else:
+                outs = (cx.update(None), cy.update(None), cz.update(None), cc.update(None))
+            ox, oy, oz, oc = outs
+            out = update(MotionState((ox.pos, oy.pos, oz.pos), (ox.vel, oy.vel, oz.vel),
+                                     (ox.acc, oy.acc, oz.acc), oc.pos, oc.vel, oc.acc,
+                                     (ox.jerk, oy.jerk, oz.jerk), oc.jerk))
+        v = self.v
+        sp = out.setpoint
+        p, vel, a = sp.pos, sp.vel, sp.acc
+        v[_OUT_FIRST:_OUT_END] = (p[0], p[1], p[2], sp.ang, vel[0], vel[1], vel[2], sp.ang_vel,
+                                  a[0], a[1], a[2], sp.ang_acc, out.imfs, out.state, out.error)
+        v[_VR_MSTATUS] = int(status)
+        v[_VR_MOUTLIERS] = cx.n_outliers + cy.n_outliers + cz.n_outliers + cc.n_outliers
+        self.master_ready = status == MasterStatus.OK or status == MasterStatus.COASTING
+
+    def _master_lost(self, tracker: Tracker, outs: tuple[ConditionedMaster, ...]) -> None:
+        """An axis's conditioner lost the master at this sample: de-sync if engaged."""
+        for axis, o in zip("xyzc", outs):
+            if o.event is None or o.event.kind != EventKind.LOST:
+                continue
+            engaged = tracker.state in (TrackState.SYNCING, TrackState.SYNCED)
+            if engaged:
+                tracker.disengage(TrackError.MASTER_LOST)
+            self.report(f"{self.instance_name}: master lost at t={self.time!r} s: "
+                        f"{self.v[VR['encoder_max_outliers']]} encoder samples of master_"
+                        f"{axis} in a row off what the belt can do (last {o.event.size_mm:+.6g} "
+                        f"{'deg' if axis == 'c' else 'mm'}); "
+                        + ("de-sync with MASTER_LOST" if engaged else "not engaged")
+                        + "; the conditioner starts again from the next sample", WARNING)
+            return
 
     # -- FMU state ------------------------------------------------------------------------
     def get_state(self) -> dict:
         """Everything: all variable values, the whole tracker (deep copy), edge memory."""
         return {"format": STATE_FORMAT, "build": self.build_id, "values": list(self.v),
                 "tracker": None if self.tracker is None else self.tracker.snapshot(),
+                "conditioners": copy.deepcopy(self.conditioners),
+                "master_ready": self.master_ready, "engage_held": self.engage_held,
                 "params": self.params, "engage_prev": self.engage_prev, "t0": self.t0,
                 "time": self.time, "failed": self.failed, "initialized": self.initialized,
                 "k": self.k, "t0_known": self.t0_known, "terminated": self.terminated}
@@ -671,6 +887,9 @@ class TrackerEngine:
         self.v[:] = state["values"]
         tracker = state["tracker"]
         self.tracker = None if tracker is None else tracker.snapshot()
+        self.conditioners = copy.deepcopy(state.get("conditioners"))
+        self.master_ready = state.get("master_ready", self.conditioners is None)
+        self.engage_held = state.get("engage_held", False)
         self.params = state["params"]
         self.T = self.params.sample_time_s if self.params else float(
             self.v[VR["sample_time"]])

@@ -242,6 +242,10 @@ class FmuTracker:
     def outputs(self) -> tuple[list[float], list[int]]:
         return self._get_real(self._out_vrs), self._get_int(self._int_vrs)
 
+    def get_ints(self, names: list[str]) -> list[int]:
+        """Integer variables by name (e.g. ``master_status``, ``master_outliers``)."""
+        return list(self._get_int([self.vr[n] for n in names]))
+
     # -- FMU state (FMI 2 and FMI 3 spell the calls differently) ---------------------------
     def get_state(self):
         return self.slave.getFMUState() if self.fmi3 else self.slave.getFMUstate()

@@ -13,18 +13,52 @@ clear message instead:
   warning saying so; ``exitInitializationMode`` with ``planner=1`` is an error (no silent
   switch to another planner: its numbers differ from what the parameters ask for), with
   ``planner=0`` (softmc, numpy only) the FMU runs.
+
+Instances the host never frees: a host may exit with live instances (a Python script that
+instantiates, steps and ends without fmiXTerminate/fmiXFreeInstance; a C host that calls
+exit()).  pythonfmu's wrapper then still holds the slave objects while the interpreter
+finalises (a Python host's own exit, or the wrapper's Py_Finalize at unload in a host the
+wrapper started Python in), and the trackers' ruckig objects would be torn down after
+ruckig's binding module (nanobind reports them as leaked; once seen to abort there).  So
+every engine registers itself here (``track_instance``, a weak reference: a freed instance
+is gone) and an ``atexit`` hook -- run at the start of the interpreter's finalisation, while
+everything still works -- releases the compiled objects of the engines still alive
+(``TrackerEngine.release``).
 """
 
 from __future__ import annotations
 
+import atexit
 import importlib
 import sys
+import weakref
 from types import ModuleType
 from typing import Any
 
 #: pip requirement of the compiled dependencies (keep in step with pyproject.toml)
 NUMPY_REQUIREMENT = "numpy>=1.24"
 RUCKIG_REQUIREMENT = "ruckig>=0.12"
+
+
+#: the engines of the live instances (weak: an instance the host freed drops out)
+_LIVE: weakref.WeakSet[Any] = weakref.WeakSet()
+
+
+def track_instance(engine: Any) -> None:
+    """Register an engine (anything with ``release()``) for the exit hook."""
+    _LIVE.add(engine)
+
+
+def release_live_instances() -> int:
+    """Release every registered engine still alive (``atexit``); returns how many."""
+    live = list(_LIVE)
+    for engine in live:
+        engine.release()
+    _LIVE.clear()
+    return len(live)
+
+
+atexit.register(release_live_instances)
 
 
 class FmuDependencyError(ImportError):
@@ -114,6 +148,8 @@ class EngineStateMixin:
     def _get_integers(self, vrs):
         if not self._int.issuperset(vrs):
             self._engine.check("Integer", vrs)
+        if self._engine.tracker is None:  # before initialisation: the InitialUnknowns
+            self._engine.refresh_initial()
         v = self._v
         return [v[vr] for vr in vrs]
 

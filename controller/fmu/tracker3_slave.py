@@ -2,9 +2,9 @@
 
 The same engine as the FMI 2.0 FMU (``controller/fmu/engine.py``: variables, step semantics,
 errors, FMU state), with FMI 3 types: Real -> Float64 (with units), Integer -> Int32,
-Boolean -> Boolean, ``mode`` an Enumeration (Int64), plus the independent variable ``time``
-[s] (value reference 52, after the 52 variables of the FMI 2.0 FMU, which keep their value
-references).  pythonfmu3 writes the units, ``InitialUnknown`` and ``Output`` entries;
+Boolean -> Boolean, ``mode`` and ``master_input`` Enumerations (Int64), plus the independent
+variable ``time`` [s] (its value reference is len(VARIABLES), after the variables of the
+FMI 2.0 FMU, which keep their value references).  pythonfmu3 writes the units, ``InitialUnknown`` and ``Output`` entries;
 ``to_xml`` adds their dependencies, min/max, the enumeration and fixedInternalStepSize.
 
 FMI 3 statuses: a refused step (step size, non-finite master input, invalid tunable at
@@ -123,8 +123,9 @@ class CanTracker3(EngineStateMixin, Fmi3Slave):
         self.log(msg, Fmi3Status(level))
 
     # -- life cycle.  pythonfmu3 passes no start time to Python: the FMU's front library
-    #    sets ``time`` (value reference 52) to fmi3EnterInitializationMode's startTime just
-    #    before it (independent variables are not settable by the importer; see build.py).
+    #    sets ``time`` (value reference len(VARIABLES)) to fmi3EnterInitializationMode's
+    #    startTime just before it (independent variables are not settable by the importer;
+    #    see build.py).
     #    Without the front library ``time`` is the first step's start.
     def exit_initialization_mode(self) -> None:
         self._engine.exit_initialization()

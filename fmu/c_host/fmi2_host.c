@@ -6,7 +6,7 @@
  *   gcc -O1 -o fmi2_host fmi2_host.c -ldl
  *   unzip CanTracker.fmu -d CanTracker
  *   ./fmi2_host CanTracker/binaries/linux64/CanTracker.so GUID \
- *               file:///abs/path/CanTracker/resources inputs.txt PLANNER
+ *               file:///abs/path/CanTracker/resources inputs.txt PLANNER [live]
  *
  * pythonfmu's wrapper alone (CanTracker_pythonfmu.so) fails to load here with
  * "undefined symbol: _Py_NoneStruct" (pythonfmu #202).
@@ -16,11 +16,14 @@
  * real outputs from x in the same order, followed by imfs, state, error); then one line per
  * step of 1 ms: "engage x y z c vx vy vz vc ax ay az ac" (the master at the step start).
  * Output: one line per step, "x y z c vx vy vz vc ax ay az ac imfs state error" (%.17g).
+ * "live": exit without fmi2Terminate / fmi2FreeInstance (a host that never frees its
+ * instance; the FMU must still let the process end cleanly).
  * Used by tests/test_fmu.py::test_non_python_host.
  */
 #include <dlfcn.h>
 #include <stdio.h>
 #include <stdlib.h>
+#include <string.h>
 
 typedef void *fmi2Component;
 typedef unsigned int fmi2ValueReference;
@@ -59,8 +62,9 @@ static void *symbol(void *lib, const char *name) {
 }
 
 int main(int argc, char **argv) {
-    if (argc != 6) {
-        fprintf(stderr, "usage: %s LIBRARY GUID RESOURCE_URI INPUTS PLANNER\n", argv[0]);
+    if (argc != 6 && argc != 7) {
+        fprintf(stderr, "usage: %s LIBRARY GUID RESOURCE_URI INPUTS PLANNER [live]\n",
+                argv[0]);
         return 2;
     }
     void *lib = dlopen(argv[1], RTLD_NOW | RTLD_LOCAL);
@@ -122,6 +126,8 @@ int main(int argc, char **argv) {
         k++;
     }
     fclose(in);
+    if (argc > 6 && strcmp(argv[6], "live") == 0)
+        return 0; /* exit with the instance alive (a host that never frees it) */
     terminate(c);
     free_instance(c);
     return 0;
