@@ -13,11 +13,15 @@ Two stages (docs/spec/master-conditioning.md#2 to #4):
 
 1. **Estimator** -- a Kalman filter on the constant-jerk model x = (p, v, a, j) [mm, mm/s,
    mm/s^2, mm/s^3] driven by white snap of intensity q, measuring p with variance
-   R = resolution^2/12 + noise_mm^2 (eq. 2.1-2.4).  q = omega^8 R T sets the bandwidth
-   omega = 2 pi ``bandwidth_hz`` (eq. 2.5).  The first ``warmup_samples`` run the full
-   (time-varying) filter from a wide prior; after that the steady-state gain for the nominal
-   period is used (computed once from the Riccati recursion), with the prediction over the
-   actual time between sample instants (jitter, missing samples).
+   R = resolution^2/12 + noise_mm^2 (eq. 2.1-2.4).  q is the *quiet* model's,
+   JerkMax^2 / ``quiet_jerk_change_s`` (or omega^8 R T for omega = 2 pi ``bandwidth_hz``,
+   eq. 2.5): it averages where the belt's jerk does not change.  The first
+   ``warmup_samples`` run the full (time-varying) filter from a wide prior; after that the
+   gains come from a schedule computed once for the nominal period (eq. 2.7): a detector
+   of jerk steps (an exponential average of the innovations beyond ``jerk_step_sigma``)
+   re-opens the filter as a jerk step of 1 sigma = JerkMax would, and the gain runs down
+   along the Riccati recursion to the steady state; the prediction is over the actual time
+   between sample instants (jitter, missing samples).
    *Outliers*: a sample whose innovation exceeds the gate (eq. 3.1)
    ``outlier_mm + JerkMax*dt^3/6`` (dt: time since the last accepted sample) is not
    something the belt can have done: it is rejected, counted, reported as an
@@ -33,7 +37,8 @@ Two stages (docs/spec/master-conditioning.md#2 to #4):
      u = j_e + 3w(a_e - a) + 3w^2(v_e - v) + w^3(p_e - p) (triple pole at -w,
      w = 2 pi ``output_hz``) with feed-forward of the estimated jerk, projected onto the
      kinematic constraints |u| <= JerkMax, |a + uT| <= AccelerationMax and the braking
-     distance of the velocity (eq. 4.1-4.3).  A few multiply-adds per sample.
+     distance of the velocity (eq. 4.1-4.3); where it would saturate, its pole is scheduled
+     down until it fits (low-gain feedback: no wind-up).  A few multiply-adds per sample.
    - ``ConditionerDesign.OTG``: online trajectory generation with Ruckig: every sample a
      time-optimal plan from the output state to the estimate predicted by the last plan's
      duration, within the frame's limits; the output is its first sample (eq. 4.4).
@@ -133,6 +138,12 @@ class ConditioningParams:
     #: the belt's jerk may change by JerkMax within about this long [s]: sets the snap
     #: intensity q = JerkMax^2 / jerk_change_s of the estimator's model (eq. 2.5)
     jerk_change_s: float = 1.0
+    #: between jerk steps the belt's jerk may change by JerkMax only within about this long
+    #: [s]: the quiet model's snap intensity q_s = JerkMax^2 / quiet_jerk_change_s (eq. 2.5);
+    #: a detected jerk step opens the filter (eq. 2.7)
+    quiet_jerk_change_s: float = 100.0
+    #: the jerk-step detector's threshold [sigma of its statistic] (eq. 2.7)
+    jerk_step_sigma: float = 3.0
     outlier_mm: float | None = None
     max_outliers: int = 10
     #: the output's jerk may exceed JerkMax by this share to catch up the estimator's lag
@@ -152,8 +163,13 @@ class ConditioningParams:
                                  ) from None
         if not (math.isfinite(self.lead_samples) and 0.0 <= self.lead_samples <= 100.0):
             raise ParameterError(f"lead_samples (={self.lead_samples!r}) must be in [0...100]")
-        if not (math.isfinite(self.jerk_change_s) and self.jerk_change_s > 0.0):
-            raise ParameterError(f"jerk_change_s (={self.jerk_change_s!r}) must be > 0 s")
+        for name in ("jerk_change_s", "quiet_jerk_change_s"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0.0):
+                raise ParameterError(f"{name} (={v!r}) must be > 0 s")
+        if not (isinstance(self.jerk_step_sigma, (int, float))
+                and math.isfinite(self.jerk_step_sigma) and self.jerk_step_sigma > 0.0):
+            raise ParameterError(f"jerk_step_sigma (={self.jerk_step_sigma!r}) must be > 0")
         for name in ("bandwidth_hz", "output_hz"):
             v = getattr(self, name)
             if v is None:
@@ -195,6 +211,15 @@ class ConditioningParams:
         q = self.frame.jerk ** 2 / self.jerk_change_s
         w = (q / (self.measurement_var_mm2 * self.sample_time_s)) ** 0.125
         return min(w / (2.0 * math.pi), 0.1 / self.sample_time_s)
+
+    @property
+    def quiet_q(self) -> float:
+        """The quiet model's snap intensity q_s [mm^2/s^7] (eq. 2.5): JerkMax^2 /
+        ``quiet_jerk_change_s``, or from ``bandwidth_hz`` if given."""
+        if self.bandwidth_hz is not None:
+            w = 2.0 * math.pi * self.bandwidth_hz
+            return w ** 8 * self.measurement_var_mm2 * self.sample_time_s
+        return self.frame.jerk ** 2 / self.quiet_jerk_change_s
 
     @property
     def generator_hz(self) -> float:
@@ -273,6 +298,65 @@ def steady_state(q: float, r: float, dt: float) -> tuple[tuple[float, float, flo
     return (float(K[0]), float(K[1]), float(K[2]), float(K[3])), P
 
 
+#: a jerk step is assumed to have happened within this long before its detection [s]: the
+#: covariance a detection adds is the model's process noise over it (eq. 2.7)
+JERK_STEP_WINDOW_S = 0.04
+#: the detector's memory [s]: time constant of its exponential average of innovations
+JERK_STEP_MEMORY_S = 0.005
+#: after a detection the next one is not before this long [s] (the gains run down first)
+JERK_STEP_HOLD_S = 0.06
+#: the KINEMATIC law's pole is at most this / T [rad/s] (eq. 4.2): a discrete law with a
+#: faster pole rings when it saturates after a detected jerk step
+OUTPUT_POLE_T = 0.25
+
+
+def jerk_step_schedule(q: float, r: float, dt: float, P: np.ndarray, jerk_mm_s3: float,
+                       window_s: float = JERK_STEP_WINDOW_S, rtol: float = 1e-3,
+                       max_samples: int = 100_000) -> tuple[list, list]:
+    """Gains after a detected jerk step (eq. 2.7): the Riccati recursion of the quiet model
+    (snap q, measurement variance r [mm^2], period dt [s]) from its steady-state covariance
+    P plus the process noise of a jerk change of 1 sigma = ``jerk_mm_s3`` spread over
+    ``window_s``, until the gain is within ``rtol`` of the steady state.  Returns the gains
+    (p, v, a, j rows) and the innovation standard deviations [mm], one per sample; the last
+    entry is the steady state."""
+    K_ss, _ = steady_state(q, r, dt)
+    F = _f_matrix(dt)
+    Q = _q_matrix(q, dt)
+    P = P + _q_matrix(jerk_mm_s3 ** 2 / window_s, window_s)
+    Ks: list = []
+    Ss: list = []
+    for _ in range(max_samples):
+        Pp = F @ P @ F.T + Q
+        S = float(Pp[0, 0] + r)
+        K = Pp[:, 0] / S
+        P = Pp - np.outer(K, Pp[0, :])
+        Ks.append((float(K[0]), float(K[1]), float(K[2]), float(K[3])))
+        Ss.append(math.sqrt(S))
+        if all(abs(k - ks) <= rtol * abs(ks) for k, ks in zip(Ks[-1], K_ss)):
+            break
+    Ks.append(K_ss)
+    Ss.append(Ss[-1])
+    return Ks, Ss
+
+
+def _low_gain(j: float, ea: float, ev: float, ep: float, w: float, lo: float,
+              hi: float) -> float:
+    """Eq. 4.3: the tracking law u = j + 3w'e_a + 3w'^2 e_v + w'^3 e_p with the largest
+    pole w' <= w [rad/s] for which u lies in [lo, hi] [mm/s^3] (bisection; j itself is
+    taken into [lo, hi] first).  Scheduling the gain down while the error is large keeps
+    the saturated triple integrator linear, so it cannot wind up (low-gain feedback)."""
+    base = max(lo, min(hi, j))
+    a, b = 0.0, w
+    for _ in range(24):
+        m = 0.5 * (a + b)
+        u = base + m * (3.0 * ea + m * (3.0 * ev + m * ep))
+        if lo <= u <= hi:
+            a = m
+        else:
+            b = m
+    return max(lo, min(hi, base + a * (3.0 * ea + a * (3.0 * ev + a * ep))))
+
+
 def output_pole(P: np.ndarray, w_max: float, authority: float) -> float:
     """The KINEMATIC law's pole [rad/s] (eq. 4.2): the fastest up to ``w_max`` whose jerk
     driven by the estimate's own error, 3 sigma of g^T P g with g = (w^3, 3w^2, 3w, 1),
@@ -306,9 +390,21 @@ class MasterConditioner:
         T = self.T = params.sample_time_s
         enc = params.encoder
         self._r = r = params.measurement_var_mm2
+        self._q = q = params.quiet_q
+        # the warm-up's model: the belt's jerk changing by JerkMax within jerk_change_s (eq. 2.5)
         w = 2.0 * math.pi * params.estimator_hz
-        self._q = w ** 8 * r * T
-        self._K, P = steady_state(self._q, r, T)
+        self._q_warm = w ** 8 * r * T
+        self._K, P = steady_state(q, r, T)
+        # eq. 2.7: the gains after a detected jerk step, run down to the steady state; the
+        # detector's thresholds per step of that schedule
+        self._Ks, sd = jerk_step_schedule(q, r, T, P, params.frame.jerk)
+        self._n_ks = len(self._Ks) - 1
+        lam = self._lam = math.exp(-T / JERK_STEP_MEMORY_S)
+        c = params.jerk_step_sigma * math.sqrt((1.0 - lam) / (1.0 + lam))
+        self._thr = [c * x for x in sd]
+        self._hold = max(1, round(JERK_STEP_HOLD_S / T))
+        #: jerk steps detected (statistics)
+        self.n_jerk_steps = 0
         f = params.frame
         # (1 - 1e-9): the output stays under the maxima after rounding (the tracker's master
         # monitoring compares with them exactly)
@@ -318,7 +414,8 @@ class MasterConditioner:
         self._authority = max(self._Jout - f.jerk, 0.25 * f.jerk)
         wo = 2.0 * math.pi * params.generator_hz
         if params.output_hz is None:
-            wo = output_pole(P, wo, self._authority)
+            # eq. 4.2: the noise of the quiet estimate, at most OUTPUT_POLE_T / T
+            wo = output_pole(P, min(wo, OUTPUT_POLE_T / T), self._authority)
         #: the KINEMATIC law's pole [Hz]
         self.output_hz = wo / (2.0 * math.pi)
         # triple pole at -wo as a cascade: kp*kv*ka = wo^3, kv*ka = 3 wo^2, ka = 3 wo
@@ -360,6 +457,8 @@ class MasterConditioner:
         self._t_acc = (0, 0.0)  # instant of the last accepted sample
         self._y: tuple[float, float, float] | None = None  # output at the last setpoint time
         self._yj = 0.0
+        self._i = 0  # step of the jerk-step gain schedule (eq. 2.7)
+        self._s = 0.0  # the jerk-step detector's statistic [mm]
         self.lost = False
 
     # -- the estimator ------------------------------------------------------------------
@@ -398,12 +497,12 @@ class MasterConditioner:
                 if self._bad >= self.params.max_outliers:
                     return EventKind.LOST, innov
                 return EventKind.OUTLIER, innov
-            K = self._K
+            K = self._gain(innov)
             self._x = (xp[0] + K[0] * innov, xp[1] + K[1] * innov, xp[2] + K[2] * innov,
                        xp[3] + K[3] * innov)
         else:  # warm-up: the full filter from the wide prior
             F = _f_matrix(dt)
-            P = F @ self._P @ F.T + _q_matrix(self._q, dt)
+            P = F @ self._P @ F.T + _q_matrix(self._q_warm, dt)
             Kv = P[:, 0] / (P[0, 0] + self._r)
             self._P = P - np.outer(Kv, P[0, :])
             xn = np.asarray(xp) + Kv * innov
@@ -413,6 +512,18 @@ class MasterConditioner:
         self._n += 1
         self._t_acc = ts
         return None, innov
+
+    def _gain(self, innov: float) -> tuple[float, float, float, float]:
+        """Eq. 2.7: the gain for an accepted sample of innovation ``innov`` [mm]; detects a
+        jerk step (the schedule starts again) and moves the schedule on."""
+        i = self._i
+        s = self._s = self._lam * self._s + (1.0 - self._lam) * innov
+        if i >= self._hold and abs(s) > self._thr[i]:
+            i = 0
+            self._s = 0.0
+            self.n_jerk_steps += 1
+        self._i = i + 1 if i < self._n_ks else i
+        return self._Ks[i]
 
     # -- the cyclic call ----------------------------------------------------------------
     def update(self, position_mm: float | None, time_offset_s: float = 0.0) -> ConditionedMaster:
@@ -437,7 +548,15 @@ class MasterConditioner:
             da = (kx - ta[0]) * T + (off - ta[1])
             if -self._gate - self._J * da * da * da / 6.0 <= innov <= (
                     self._gate + self._J * da * da * da / 6.0):
-                K0, K1, K2, K3 = self._K
+                # eq. 2.7, inlined (_gain)
+                i = self._i
+                s = self._s = self._lam * self._s + (1.0 - self._lam) * innov
+                if i >= self._hold and (s > self._thr[i] or -s > self._thr[i]):
+                    i = 0
+                    self._s = 0.0
+                    self.n_jerk_steps += 1
+                self._i = i + 1 if i < self._n_ks else i
+                K0, K1, K2, K3 = self._Ks[i]
                 self._x = (p + K0 * innov, v + K1 * innov, a + K2 * innov, j + K3 * innov)
                 self._tx = self._t_acc = (kx, off)
                 self._bad = 0
@@ -476,6 +595,8 @@ class MasterConditioner:
         if self.lost and position_mm is not None:
             self._x = None  # start again from this sample
             self._n = 0
+            self._i = 0
+            self._s = 0.0
             self.lost = False
         if position_mm is None:
             self.n_missing += 1
@@ -542,11 +663,9 @@ class MasterConditioner:
         if lo > hi:  # outside the envelope (cannot come from the output itself): brake
             u = max(-J, min(J, lo if a < 0.0 else hi))
         elif not lo <= u <= hi:
-            # the law would saturate: a saturated triple integrator can wind up, so this
-            # step is the time-optimal one (eq. 4.4), which is stable for any error
-            if self._otg_step(t_sp, fallback=False):
-                return
-            u = max(lo, min(hi, u))
+            # the law would saturate: a saturated triple integrator can wind up, so the law's
+            # pole is scheduled down until it fits (eq. 4.3: low-gain feedback)
+            u = _low_gain(je, ae - a, ve - v, pe - p, self._gains[0] / 3.0, lo, hi)
         h = T * T
         self._y = (p + v * T + a * h * 0.5 + u * h * T / 6.0, v + a * T + u * h * 0.5,
                    a + u * T)
