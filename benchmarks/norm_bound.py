@@ -16,8 +16,8 @@ from u.e0 to rest at 0, with |u.v_m(t) + s'| <= ||v|| <= V, |u.a_m + s''| <= A a
 [0, H] the velocity bounds are loosened to their widest; with H = the ``optimal`` planner's
 own time to sync (at least the optimum, since that planner keeps the norms) the 1-D
 time-optimal duration of the projection (Ruckig, exact for one axis) is a lower bound, for
-every u; the bound is its maximum over u (a Fibonacci sphere of 600 directions refined by a
-local search).  Prints, per case and as median / p90: optimal / reference, bound /
+every u; the bound is its maximum over u (a Fibonacci sphere of 600 directions, the axes
+and the offset's direction, refined by a local search).  Prints, per case and as median / p90: optimal / reference, bound /
 reference, optimal / bound.  Deterministic for a seed.
 """
 
@@ -89,7 +89,11 @@ def lower_bound_s(case: bt.Case, horizon_s: float, seed: int = 0) -> float:
     """max over u of the projected duration [s], at most ``horizon_s``."""
     rng = np.random.default_rng(seed)
     best, bu = 0.0, np.array([1.0, 0.0, 0.0])
-    for u in _sphere(600):
+    e0 = np.array(case.robot_pos)
+    extra = [np.eye(3)[i] * s for i in range(3) for s in (1.0, -1.0)]
+    if np.linalg.norm(e0) > 0.0:
+        extra += [e0 / np.linalg.norm(e0), -e0 / np.linalg.norm(e0)]
+    for u in list(_sphere(600)) + extra:
         t = projected_duration(case, u, horizon_s)
         if t is not None and t > best:
             best, bu = t, u
