@@ -397,12 +397,16 @@ class MasterConditioner:
         self._K, P = steady_state(q, r, T)
         # eq. 2.7: the gains after a detected jerk step, run down to the steady state; the
         # detector's thresholds per step of that schedule
-        self._Ks, sd = jerk_step_schedule(q, r, T, P, params.frame.jerk)
-        self._n_ks = len(self._Ks) - 1
+        Ks, sd = jerk_step_schedule(q, r, T, P, params.frame.jerk)
         lam = self._lam = math.exp(-T / JERK_STEP_MEMORY_S)
+        self._lam1 = 1.0 - lam
         c = params.jerk_step_sigma * math.sqrt((1.0 - lam) / (1.0 + lam))
-        self._thr = [c * x for x in sd]
-        self._hold = max(1, round(JERK_STEP_HOLD_S / T))
+        hold = max(1, round(JERK_STEP_HOLD_S / T))
+        last = len(Ks) - 1
+        #: per step i of the schedule: (K_p, K_v, K_a, K_j, the detector's threshold [mm]
+        #: (none during the hold after a detection), the next step)
+        self._sched = [(*K, c * x if i >= hold else math.inf, min(i + 1, last))
+                       for i, (K, x) in enumerate(zip(Ks, sd))]
         #: jerk steps detected (statistics)
         self.n_jerk_steps = 0
         f = params.frame
@@ -457,7 +461,9 @@ class MasterConditioner:
         self._t_acc = (0, 0.0)  # instant of the last accepted sample
         self._y: tuple[float, float, float] | None = None  # output at the last setpoint time
         self._yj = 0.0
-        self._i = 0  # step of the jerk-step gain schedule (eq. 2.7)
+        # step of the jerk-step gain schedule (eq. 2.7): the steady state once warmed up (the
+        # warm-up's faster model has converged; a jerk step re-opens the filter)
+        self._i = len(self._sched) - 1
         self._s = 0.0  # the jerk-step detector's statistic [mm]
         self.lost = False
 
@@ -516,14 +522,15 @@ class MasterConditioner:
     def _gain(self, innov: float) -> tuple[float, float, float, float]:
         """Eq. 2.7: the gain for an accepted sample of innovation ``innov`` [mm]; detects a
         jerk step (the schedule starts again) and moves the schedule on."""
-        i = self._i
-        s = self._s = self._lam * self._s + (1.0 - self._lam) * innov
-        if i >= self._hold and abs(s) > self._thr[i]:
-            i = 0
-            self._s = 0.0
+        g = self._sched[self._i]
+        s = self._lam * self._s + self._lam1 * innov
+        if abs(s) > g[4]:
+            g = self._sched[0]
+            s = 0.0
             self.n_jerk_steps += 1
-        self._i = i + 1 if i < self._n_ks else i
-        return self._Ks[i]
+        self._s = s
+        self._i = g[5]
+        return g[0], g[1], g[2], g[3]
 
     # -- the cyclic call ----------------------------------------------------------------
     def update(self, position_mm: float | None, time_offset_s: float = 0.0) -> ConditionedMaster:
@@ -549,14 +556,14 @@ class MasterConditioner:
             if -self._gate - self._J * da * da * da / 6.0 <= innov <= (
                     self._gate + self._J * da * da * da / 6.0):
                 # eq. 2.7, inlined (_gain)
-                i = self._i
-                s = self._s = self._lam * self._s + (1.0 - self._lam) * innov
-                if i >= self._hold and (s > self._thr[i] or -s > self._thr[i]):
-                    i = 0
-                    self._s = 0.0
+                g = self._sched[self._i]
+                s = self._lam * self._s + self._lam1 * innov
+                if s > g[4] or -s > g[4]:
+                    g = self._sched[0]
+                    s = 0.0
                     self.n_jerk_steps += 1
-                self._i = i + 1 if i < self._n_ks else i
-                K0, K1, K2, K3 = self._Ks[i]
+                self._s = s
+                K0, K1, K2, K3, _, self._i = g
                 self._x = (p + K0 * innov, v + K1 * innov, a + K2 * innov, j + K3 * innov)
                 self._tx = self._t_acc = (kx, off)
                 self._bad = 0
@@ -595,7 +602,7 @@ class MasterConditioner:
         if self.lost and position_mm is not None:
             self._x = None  # start again from this sample
             self._n = 0
-            self._i = 0
+            self._i = len(self._sched) - 1
             self._s = 0.0
             self.lost = False
         if position_mm is None:
