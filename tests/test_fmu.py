@@ -84,8 +84,8 @@ def test_build_layout(tracker_fmu):
     assert f"resources/{module}.py" in names
     # the core lives in a private package named after the script (no host can shadow it)
     private = f"resources/_{module}/"
-    for f in ("__init__.py", "errors.py", "tracking/__init__.py", "tracking/tracker.py",
-              "tracking/softmc.py", "fmu/engine.py", "fmu/runtime.py", "pythonfmu/fmi2slave.py"):
+    for f in ("__init__.py", "errors.py", "limits.py", "tracking/__init__.py",
+              "tracking/tracker.py", "tracking/softmc.py", "fmu/engine.py", "fmu/runtime.py", "pythonfmu/fmi2slave.py"):
         assert private + f in names, f
     assert not any(n.startswith("resources/controller/") for n in names)
     script = zipfile.ZipFile(tracker_fmu).read(f"resources/{module}.py").decode()

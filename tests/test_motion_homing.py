@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from controller.errors import ParameterError, StateError
+from controller.limits import Limits
 from controller.motion import (
-    AxisLimits,
     DriveHomingConfig,
     GotoY,
     HomingConfig,
@@ -20,7 +20,7 @@ from controller.motion import (
 )
 
 S = HomingState
-LIMITS = AxisLimits(500.0, 5000.0, 1e5)
+LIMITS = Limits(500.0, 5000.0, 1e5)
 T = 0.001
 
 
@@ -68,12 +68,12 @@ def assert_within_limits(outs, limits, start_mm):
     v = np.array([o.velocity_mm_s for o in outs])
     a = np.array([o.acceleration_mm_s2 for o in outs])
     j = np.array([o.jerk_mm_s3 for o in outs])
-    assert np.max(np.abs(v)) <= limits.max_vel * (1 + 1e-9)
-    assert np.max(np.abs(a)) <= limits.max_acc * (1 + 1e-9)
-    assert np.max(np.abs(j)) <= limits.max_jerk * (1 + 1e-9)
+    assert np.max(np.abs(v)) <= limits.vel * (1 + 1e-9)
+    assert np.max(np.abs(a)) <= limits.acc * (1 + 1e-9)
+    assert np.max(np.abs(j)) <= limits.jerk * (1 + 1e-9)
     p = np.array([start_mm] + [o.position_mm for o in outs])
     tol = 1e-10 * max(1.0, float(np.max(np.abs(p))))
-    for order, bound in ((1, limits.max_vel), (2, limits.max_acc), (3, limits.max_jerk)):
+    for order, bound in ((1, limits.vel), (2, limits.acc), (3, limits.jerk)):
         worst = np.max(np.abs(np.diff(p, order)), initial=0.0) / T**order
         assert worst <= bound * (1 + 1e-9) + 2**order * tol / T**order, (order, worst, bound)
 

@@ -8,11 +8,12 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from controller.errors import ParameterError
-from controller.motion import AxisConfig, AxisLimits, Jog, MotionResult, PtpState
+from controller.limits import Limits
+from controller.motion import AxisConfig, Jog, MotionResult, PtpState
 
 PROPERTY = settings(derandomize=True, database=None, deadline=None, max_examples=60,
                     suppress_health_check=[HealthCheck.too_slow])
-LIMITS = AxisLimits(500.0, 5000.0, 1e5)
+LIMITS = Limits(500.0, 5000.0, 1e5)
 
 
 def steps(axis, n):
@@ -32,13 +33,13 @@ def assert_stream_within_limits(outs, limits, period_s, start_mm):
     v = np.array([o.velocity_mm_s for o in outs])
     a = np.array([o.acceleration_mm_s2 for o in outs])
     j = np.array([o.jerk_mm_s3 for o in outs])
-    assert np.max(np.abs(v)) <= limits.max_vel * (1 + 1e-9)
-    assert np.max(np.abs(a)) <= limits.max_acc * (1 + 1e-9)
-    assert np.max(np.abs(j)) <= limits.max_jerk * (1 + 1e-9)
+    assert np.max(np.abs(v)) <= limits.vel * (1 + 1e-9)
+    assert np.max(np.abs(a)) <= limits.acc * (1 + 1e-9)
+    assert np.max(np.abs(j)) <= limits.jerk * (1 + 1e-9)
     p = np.array([start_mm] + [o.position_mm for o in outs])
     tol = 1e-10 * max(1.0, float(np.max(np.abs(p))))
     T = period_s
-    for order, bound in ((1, limits.max_vel), (2, limits.max_acc), (3, limits.max_jerk)):
+    for order, bound in ((1, limits.vel), (2, limits.acc), (3, limits.jerk)):
         worst = np.max(np.abs(np.diff(p, order)), initial=0.0) / T**order
         assert worst <= bound * (1 + 1e-9) + 2**order * tol / T**order, (order, worst, bound)
 
@@ -93,11 +94,11 @@ def test_set_velocity_zero_is_stop_and_limits_are_checked():
 @given(st.lists(st.tuples(st.integers(0, 400), st.floats(-1.0, 1.0)), min_size=1, max_size=6),
        st.sampled_from([0.001, 0.004]))
 def test_random_jog_commands_within_limits(commands, period):
-    limits = AxisLimits(300.0, 2000.0, 3e4)
+    limits = Limits(300.0, 2000.0, 3e4)
     axis = Jog(AxisConfig(limits, period, 0.004, 0.004, 0.0), position_mm=0.0)
     outs = []
     for wait, frac in commands:
-        axis.set_velocity(frac * limits.max_vel)
+        axis.set_velocity(frac * limits.vel)
         outs += steps(axis, wait)
     axis.stop()
     outs += settle(axis)

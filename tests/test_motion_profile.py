@@ -12,7 +12,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from controller.errors import ParameterError
-from controller.motion.limits import AxisLimits
+from controller.limits import Limits
 from controller.motion.profile import (
     KinematicState,
     Phase,
@@ -61,7 +61,7 @@ def test_hand_computed_long_move_acceleration_bound_with_const():
     #   T2 = V/A = 0.1 s, k = V/T2^2 = 5e4 mm/s^3 (<= J), peak k*T2 = 5000 = A.
     #   ACCEL lasts 2*T2 = 0.2 s and covers (0 + 500)*0.1 = 50 mm; DECEL the same.
     #   CONST covers 150 - 100 = 50 mm at 500 mm/s: Tc = 0.1 s.  Total 0.5 s.
-    limits = AxisLimits(500.0, 5000.0, 1e5)
+    limits = Limits(500.0, 5000.0, 1e5)
     p = plan_rest_to_rest(0.0, 150.0, limits)
     assert p.phases == (Phase.ACCEL, Phase.CONST, Phase.DECEL)
     assert p.phase_duration_s(Phase.ACCEL) == pytest.approx(0.2, abs=1e-12)
@@ -83,7 +83,7 @@ def test_hand_computed_short_move_jerk_bound_never_reaches_full_speed():
     # Jerk-bound guess: d = 2*vp^(3/2)/sqrt(J) -> vp = (20*100/2)^(2/3) = 1000^(2/3) = 100 mm/s
     # (<= A^2/J = 400, so the peak a = sqrt(vp*J) = 1000 < A holds).  T2 = sqrt(100/1e4)
     # = 0.1 s, k = J; ACCEL 0.2 s, CONST 0 s, DECEL 0.2 s: total 0.4 s, peak v 100 < V.
-    limits = AxisLimits(500.0, 2000.0, 1e4)
+    limits = Limits(500.0, 2000.0, 1e4)
     assert rest_to_rest_peak_velocity(20.0, limits) == pytest.approx(100.0, rel=1e-12)
     p = plan_rest_to_rest(0.0, 20.0, limits)
     assert p.phases == (Phase.ACCEL, Phase.CONST, Phase.DECEL)  # CONST present, 0 s
@@ -99,7 +99,7 @@ def test_hand_computed_short_move_acceleration_bound():
     # Jerk-bound guess (20*sqrt(1e5)/2)^(2/3) = 215 > 40, so acceleration-bound:
     # d = 2*vp^2/A -> vp = sqrt(20*2000/2) = 141.42 mm/s; T2 = vp/A = 0.0707 s,
     # k = A/T2 = 28284 mm/s^3 < J; total 4*T2 = 0.28284 s.
-    limits = AxisLimits(500.0, 2000.0, 1e5)
+    limits = Limits(500.0, 2000.0, 1e5)
     p = plan_rest_to_rest(0.0, 20.0, limits)
     assert p.duration_s == pytest.approx(4 * math.sqrt(20000.0) / 2000.0, rel=1e-12)
     assert abs(p.segments[0].jerk_mm_s3) == pytest.approx(2000.0 / (math.sqrt(20000.0) / 2000.0))
@@ -108,7 +108,7 @@ def test_hand_computed_short_move_acceleration_bound():
 
 
 def test_negative_move_mirrors_positive():
-    limits = AxisLimits(300.0, 3000.0, 5e4)
+    limits = Limits(300.0, 3000.0, 5e4)
     fwd = plan_rest_to_rest(10.0, 110.0, limits)
     back = plan_rest_to_rest(10.0, -90.0, limits)
     assert [(ph, d) for ph, d, _ in seg_table(fwd)] == [(ph, d) for ph, d, _ in seg_table(back)]
@@ -116,7 +116,7 @@ def test_negative_move_mirrors_positive():
 
 
 def test_triangle_pulse_shapes():
-    limits = AxisLimits(1000.0, 1000.0, 1e4)  # A^2/J = 100 mm/s
+    limits = Limits(1000.0, 1000.0, 1e4)  # A^2/J = 100 mm/s
     t2, k = triangle_pulse(25.0, limits)  # jerk-bound: T2 = sqrt(25/1e4) = 0.05
     assert (t2, k) == (pytest.approx(0.05), pytest.approx(1e4))
     t2, k = triangle_pulse(400.0, limits)  # acc-bound: T2 = 400/1000 = 0.4, k = 2500
@@ -125,12 +125,12 @@ def test_triangle_pulse_shapes():
 
 
 def test_zero_move_is_empty():
-    p = plan_rest_to_rest(5.0, 5.0, AxisLimits(1, 1, 1))
+    p = plan_rest_to_rest(5.0, 5.0, Limits(1, 1, 1))
     assert p.duration_s == 0.0 and p.segments == () and p.end.position_mm == 5.0
 
 
 def test_planner_rejects_non_finite():
-    limits = AxisLimits(1, 1, 1)
+    limits = Limits(1, 1, 1)
     with pytest.raises(ParameterError, match="target_mm"):
         plan_rest_to_rest(0.0, math.nan, limits)
     with pytest.raises(ParameterError, match="velocity_mm_s"):
@@ -154,7 +154,7 @@ def _decel_pulse_exact(t, y0, v0, k, t2):
 
 
 def test_thesis_decel_acceleration_matches_profile():
-    limits = AxisLimits(500.0, 5000.0, 1e5)
+    limits = Limits(500.0, 5000.0, 1e5)
     p = plan_rest_to_rest(0.0, 150.0, limits)
     t_dec = 0.3
     k = abs(p.segments[-1].jerk_mm_s3)
@@ -213,7 +213,7 @@ def test_literal_decel_position_drifts_when_read_from_state_entry():
 
 
 def test_follower_matches_closed_form_with_off_grid_boundaries():
-    limits = AxisLimits(437.0, 3123.0, 7.7e4)
+    limits = Limits(437.0, 3123.0, 7.7e4)
     p = plan_rest_to_rest(-3.0, 97.3, limits)
     T = 0.001
     samples = p.sample(T)
@@ -237,14 +237,14 @@ def limits_strategy(draw):
     t_acc = draw(st.floats(0.005, 0.5))  # time to reach V at full A
     t_jerk = draw(st.floats(0.001, 0.3))  # time to reach A at full J
     acc = vel / t_acc
-    return AxisLimits(vel, acc, acc / t_jerk)
+    return Limits(vel, acc, acc / t_jerk)
 
 
 def _check_profile(p, limits, target):
     vmax, amax, jmax = profile_extremes(p)
-    assert vmax <= limits.max_vel * (1 + 1e-9)
-    assert amax <= limits.max_acc * (1 + 1e-9)
-    assert jmax <= limits.max_jerk * (1 + 1e-9)
+    assert vmax <= limits.vel * (1 + 1e-9)
+    assert amax <= limits.acc * (1 + 1e-9)
+    assert jmax <= limits.jerk * (1 + 1e-9)
     assert abs(p.end.position_mm - target) <= 1e-9 * max(1.0, abs(target))
     assert all(s.duration_s >= 0.0 for s in p.segments)
 
@@ -274,17 +274,17 @@ def test_replan_from_mid_move_state_within_limits_and_exact(limits, distance, fr
 @PROPERTY
 @given(limits_strategy(), st.floats(-1.0, 1.0), st.floats(0.0, 1.0), st.floats(-1.0, 1.0))
 def test_velocity_and_stop_profiles_within_limits(limits, v_frac, frac, v_new_frac):
-    jog = plan_velocity(KinematicState(0.0), v_frac * limits.max_vel, limits)
+    jog = plan_velocity(KinematicState(0.0), v_frac * limits.vel, limits)
     pulse = sum(s.duration_s for s in jog.segments[:-1])
     state = jog.state_at(frac * pulse)
-    changed = plan_velocity(state, v_new_frac * limits.max_vel, limits)
+    changed = plan_velocity(state, v_new_frac * limits.vel, limits)
     vmax, amax, jmax = profile_extremes(changed)
-    assert vmax <= limits.max_vel * (1 + 1e-9)
-    assert amax <= limits.max_acc * (1 + 1e-9) and jmax <= limits.max_jerk * (1 + 1e-9)
+    assert vmax <= limits.vel * (1 + 1e-9)
+    assert amax <= limits.acc * (1 + 1e-9) and jmax <= limits.jerk * (1 + 1e-9)
     cruise = changed.knots[-1]
-    assert cruise.velocity_mm_s == pytest.approx(v_new_frac * limits.max_vel,
-                                                 abs=1e-9 * limits.max_vel)
-    assert abs(cruise.acceleration_mm_s2) <= 1e-9 * limits.max_acc
+    assert cruise.velocity_mm_s == pytest.approx(v_new_frac * limits.vel,
+                                                 abs=1e-9 * limits.vel)
+    assert abs(cruise.acceleration_mm_s2) <= 1e-9 * limits.acc
     stop = plan_stop(state, limits)
     _check_profile(stop, limits, stop.target_mm)
     if stop.segments:  # stopping never reverses
@@ -292,7 +292,7 @@ def test_velocity_and_stop_profiles_within_limits(limits, v_frac, frac, v_new_fr
 
 
 def test_replan_target_behind_brakes_and_reverses():
-    limits = AxisLimits(500.0, 5000.0, 1e5)
+    limits = Limits(500.0, 5000.0, 1e5)
     first = plan_rest_to_rest(0.0, 150.0, limits)
     state = first.state_at(0.25)  # in CONST at 500 mm/s, position 75 mm
     p = plan_position(state, 20.0, limits)
@@ -303,7 +303,7 @@ def test_replan_target_behind_brakes_and_reverses():
 
 
 def test_replan_mid_decel_to_slightly_farther_target_does_not_reverse():
-    limits = AxisLimits(500.0, 5000.0, 1e5)
+    limits = Limits(500.0, 5000.0, 1e5)
     first = plan_rest_to_rest(0.0, 150.0, limits)
     for t in (0.32, 0.36, 0.42, 0.47):
         state = first.state_at(t)
@@ -314,7 +314,7 @@ def test_replan_mid_decel_to_slightly_farther_target_does_not_reverse():
 
 
 def test_follower_time_is_sample_counter():
-    p = plan_rest_to_rest(0.0, 1.0, AxisLimits(10.0, 100.0, 1000.0))
+    p = plan_rest_to_rest(0.0, 1.0, Limits(10.0, 100.0, 1000.0))
     f = ProfileFollower(p, 0.01)
     for _ in range(7):
         f.step()
@@ -327,9 +327,9 @@ def test_follower_time_is_sample_counter():
 def test_stop_duration_bound(limits, v_frac, frac):
     # the CAN shell waits at most 2 (V/A + A/J) for a stop (--max-time): any state reached
     # within the limits stops within that
-    jog = plan_velocity(KinematicState(0.0), v_frac * limits.max_vel, limits)
+    jog = plan_velocity(KinematicState(0.0), v_frac * limits.vel, limits)
     pulse = sum(s.duration_s for s in jog.segments[:-1])
     state = jog.state_at(frac * pulse)
     stop = plan_stop(state, limits)
-    bound = 2.0 * (limits.max_vel / limits.max_acc + limits.max_acc / limits.max_jerk)
+    bound = 2.0 * (limits.vel / limits.acc + limits.acc / limits.jerk)
     assert stop.duration_s <= bound

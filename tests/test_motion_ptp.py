@@ -12,9 +12,9 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from controller.errors import ParameterError
+from controller.limits import Limits
 from controller.motion import (
     AxisConfig,
-    AxisLimits,
     MotionResult,
     PointToPoint,
     PtpState,
@@ -47,13 +47,13 @@ def assert_stream_within_limits(outs, limits, period_s, start_mm=None):
     v = np.array([o.velocity_mm_s for o in outs])
     a = np.array([o.acceleration_mm_s2 for o in outs])
     j = np.array([o.jerk_mm_s3 for o in outs])
-    assert np.max(np.abs(v)) <= limits.max_vel * (1 + 1e-9)
-    assert np.max(np.abs(a)) <= limits.max_acc * (1 + 1e-9)
-    assert np.max(np.abs(j)) <= limits.max_jerk * (1 + 1e-9)
+    assert np.max(np.abs(v)) <= limits.vel * (1 + 1e-9)
+    assert np.max(np.abs(a)) <= limits.acc * (1 + 1e-9)
+    assert np.max(np.abs(j)) <= limits.jerk * (1 + 1e-9)
     p = np.array(([start_mm] if start_mm is not None else []) + [o.position_mm for o in outs])
     tol = 1e-10 * max(1.0, float(np.max(np.abs(p))))  # position rounding [mm]
     T = period_s
-    for order, bound in ((1, limits.max_vel), (2, limits.max_acc), (3, limits.max_jerk)):
+    for order, bound in ((1, limits.vel), (2, limits.acc), (3, limits.jerk)):
         worst = np.max(np.abs(np.diff(p, order)), initial=0.0) / T**order
         assert worst <= bound * (1 + 1e-9) + 2**order * tol / T**order, (order, worst, bound)
 
@@ -66,7 +66,7 @@ def states(outs):
     return seq
 
 
-LIMITS = AxisLimits(500.0, 5000.0, 1e5)
+LIMITS = Limits(500.0, 5000.0, 1e5)
 
 
 # ------------------------------------------------------------------------------------------
@@ -107,7 +107,7 @@ def test_hand_computed_move_with_brake_timing():
 
 
 def test_short_move_skips_const_samples_but_ends_exactly():
-    limits = AxisLimits(500.0, 2000.0, 1e4)  # 20 mm: ACCEL 0.2 s, CONST 0 s, DECEL 0.2 s
+    limits = Limits(500.0, 2000.0, 1e4)  # 20 mm: ACCEL 0.2 s, CONST 0 s, DECEL 0.2 s
     axis = PointToPoint(AxisConfig(limits, 0.001))
     axis.set_target(20.0)
     outs = run(axis)
@@ -235,7 +235,7 @@ def test_deterministic():
 def axis_case(draw):
     vel = draw(st.floats(5.0, 2000.0))
     acc = vel / draw(st.floats(0.01, 0.4))
-    limits = AxisLimits(vel, acc, acc / draw(st.floats(0.002, 0.2)))
+    limits = Limits(vel, acc, acc / draw(st.floats(0.002, 0.2)))
     period = draw(st.sampled_from([0.001, 0.002, 0.004]))
     brake = draw(st.sampled_from([0.0, 0.003, 0.02]))
     config = AxisConfig(limits, period, brake, brake, draw(st.sampled_from([0.0, 0.01])))
@@ -274,7 +274,7 @@ def test_random_retargets_within_limits_and_exact(case, retargets):
     targets = {}
     for frac, rel in retargets:
         k = config.release_samples + int(frac * n_motion)
-        targets[k] = start + rel * config.limits.max_vel
+        targets[k] = start + rel * config.limits.vel
         commands[k] = functools.partial(PointToPoint.set_target, target_mm=targets[k])
     final = targets[max(targets)] if targets else target
     outs = run(axis, commands=commands)
@@ -298,7 +298,7 @@ def test_integrated_end_is_exact_before_the_snap(case, frac):
     if len(samples) >= 2:  # the last sample before the end is close to the target already
         last = samples[-2]
         remaining = abs(last.position_mm - start)
-        assert remaining <= config.limits.max_vel * config.sample_period_s * (1 + 1e-9)
+        assert remaining <= config.limits.vel * config.sample_period_s * (1 + 1e-9)
     if samples:
         assert samples[-1] == KinematicState(start, 0.0, 0.0)
 
@@ -309,7 +309,7 @@ def test_seeded_random_sweep_with_retargets():
     for _ in range(200):
         vel = rng.uniform(5.0, 2000.0)
         acc = vel / rng.uniform(0.01, 0.4)
-        limits = AxisLimits(vel, acc, acc / rng.uniform(0.002, 0.2))
+        limits = Limits(vel, acc, acc / rng.uniform(0.002, 0.2))
         period = float(rng.choice([0.001, 0.002, 0.004]))
         config = AxisConfig(limits, period, float(rng.choice([0.0, 0.01])), 0.0, 0.0)
         start = rng.uniform(-500.0, 500.0)

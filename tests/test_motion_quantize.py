@@ -10,7 +10,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from controller.errors import ParameterError
-from controller.motion import AxisConfig, AxisLimits, CountQuantizer, MotionResult, PointToPoint
+from controller.limits import Limits
+from controller.motion import AxisConfig, CountQuantizer, MotionResult, PointToPoint
 
 PROPERTY = settings(derandomize=True, database=None, deadline=None, max_examples=60,
                     suppress_health_check=[HealthCheck.too_slow])
@@ -63,7 +64,7 @@ def test_validation(kwargs, text):
        st.floats(-300.0, 300.0), st.floats(-1.0, 1.0))
 def test_count_stream_never_jumps_more_than_the_velocity_allows(
         cpm, sign, offset, vel, period, start, rel):
-    limits = AxisLimits(vel, vel / 0.05, vel / 0.05 / 0.01)
+    limits = Limits(vel, vel / 0.05, vel / 0.05 / 0.01)
     q = CountQuantizer(cpm, sign, offset)
     axis = PointToPoint(AxisConfig(limits, period), position_mm=start)
     axis.set_target(start + rel * vel)

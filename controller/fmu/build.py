@@ -11,8 +11,8 @@ What goes into ``CanTracker.fmu`` (FMI 2.0 Co-Simulation):
   whose scripts share a name cannot be used in one process; the hash (of the script and the
   bundled core) makes the name unique per content.
 - ``resources/_<prefix>_<hash>/``: the FMU's private package, everything the script imports:
-  the tracker core (``__init__``, ``errors``, ``tracking/``; it needs numpy, and ruckig for
-  planner 1), ``fmu/engine.py`` (variables, stepping, errors, FMU state) and
+  the tracker core (``__init__``, ``errors``, ``limits``, ``tracking/``; it needs numpy, and
+  ruckig for planner 1), ``fmu/engine.py`` (variables, stepping, errors, FMU state) and
   ``fmu/runtime.py`` (the dependency checks at instantiation) with a stub
   ``fmu/__init__.py`` (the build/check code is not bundled), and pythonfmu's Python part
   (``pythonfmu/``).  The build rewrites the script's ``from controller...`` and
@@ -105,7 +105,8 @@ def core_files() -> list[tuple[Path, str]]:
     All of it uses relative imports only, so it runs under the FMU's private package name.
     """
     root = Path(controller.__file__).resolve().parent
-    files = [(root / "__init__.py", "__init__.py"), (root / "errors.py", "errors.py")]
+    files = [(root / "__init__.py", "__init__.py"), (root / "errors.py", "errors.py"),
+             (root / "limits.py", "limits.py")]
     tracking = root / "tracking"
     if not (tracking / "__init__.py").is_file():
         raise FmuBuildError(f"{tracking}: the tracker core (controller.tracking) is missing")

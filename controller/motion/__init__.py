@@ -8,7 +8,7 @@ Spec: docs/spec/axis.md (the thesis' tasks Sled_Y and GotoY), with the DECCEL po
 formula fixed (docs/spec/axis.md#2.2).
 
 Modules:
-    limits    -- :class:`AxisLimits` (V, A, J) and shared validators
+    checks    -- the shared validators (an axis' limits: :class:`controller.limits.Limits`)
     profile   -- the triangular-pulse planner and the thesis' integration step (fixed)
     ptp       -- :class:`PointToPoint` (Sled_Y) with brake timing; :class:`AxisOutput`
     jog       -- :class:`Jog`
@@ -27,7 +27,6 @@ from .homing import (
     NoHomingConfig,
 )
 from .jog import Jog
-from .limits import AxisLimits
 from .profile import (
     KinematicState,
     Phase,
@@ -45,7 +44,7 @@ from .ptp import AxisConfig, AxisOutput, BrakedAxis, MotionResult, PointToPoint,
 from .quantize import CountQuantizer
 
 __all__ = [
-    "AxisConfig", "AxisLimits", "AxisOutput", "BrakedAxis", "CountQuantizer",
+    "AxisConfig", "AxisOutput", "BrakedAxis", "CountQuantizer",
     "DriveHomingConfig", "GotoY", "HomingConfig", "HomingOutput", "HomingState",
     "HomingTimeouts", "Jog", "KinematicState", "MotionResult", "NoHoming", "NoHomingConfig",
     "Phase", "PointToPoint", "Profile", "ProfileFollower", "PtpState", "Segment",

@@ -55,8 +55,8 @@ from enum import Enum
 from typing import ClassVar
 
 from ..errors import ParameterError, StateError
-from .limits import (
-    AxisLimits,
+from ..limits import Limits
+from .checks import (
     is_integer,
     require_finite,
     require_non_negative,
@@ -138,7 +138,7 @@ class HomingConfig:
     Attributes:
         limits: axis limits (ACCEL/DEACCEL pulses and the abort stop use them in full).
         sample_period_s: sample period T [s].
-        search_vel_mm_s: CONST speed [mm/s], 0 < search <= limits.max_vel.
+        search_vel_mm_s: CONST speed [mm/s], 0 < search <= limits.vel.
         creep_vel_mm_s: the user-set low speed of SMALL_V, DOGE and BACK [mm/s],
             0 < creep <= search.
         push_in_counts: m, the DOGE push-in in drive increments (>= 0).
@@ -149,7 +149,7 @@ class HomingConfig:
         timeouts: :class:`HomingTimeouts`.
     """
 
-    limits: AxisLimits
+    limits: Limits
     sample_period_s: float
     search_vel_mm_s: float
     creep_vel_mm_s: float
@@ -162,15 +162,15 @@ class HomingConfig:
     timeouts: HomingTimeouts = field(default_factory=HomingTimeouts)
 
     def __post_init__(self) -> None:
-        if not isinstance(self.limits, AxisLimits):
+        if not isinstance(self.limits, Limits):
             raise ParameterError(
-                f"HomingConfig.limits (={self.limits!r}) must be an AxisLimits instance")
+                f"HomingConfig.limits (={self.limits!r}) must be a Limits instance")
         require_positive("HomingConfig", "sample_period_s", self.sample_period_s, "s")
         require_positive("HomingConfig", "search_vel_mm_s", self.search_vel_mm_s, "mm/s")
-        if self.search_vel_mm_s > self.limits.max_vel:
+        if self.search_vel_mm_s > self.limits.vel:
             raise ParameterError(
                 f"HomingConfig.search_vel_mm_s (={self.search_vel_mm_s!r} mm/s) is out of "
-                f"range: must be in (0, {self.limits.max_vel}] mm/s (AxisLimits.max_vel)")
+                f"range: must be in (0, {self.limits.vel}] mm/s (Limits.vel)")
         require_positive("HomingConfig", "creep_vel_mm_s", self.creep_vel_mm_s, "mm/s")
         if self.creep_vel_mm_s > self.search_vel_mm_s:
             raise ParameterError(
@@ -197,9 +197,9 @@ class HomingConfig:
         return self.push_in_counts / self.counts_per_mm
 
     @property
-    def creep_limits(self) -> AxisLimits:
+    def creep_limits(self) -> Limits:
         """The axis limits with the velocity capped at the creep speed (DOGE, BACK)."""
-        return self.limits.with_max_vel(self.creep_vel_mm_s)
+        return self.limits.with_vel(self.creep_vel_mm_s)
 
 
 @dataclass(frozen=True, slots=True)

@@ -18,7 +18,7 @@ caller (or the drive's software limits, 607Dh) bounds the travel.
 from __future__ import annotations
 
 from ..errors import ParameterError
-from .limits import require_finite
+from .checks import require_finite
 from .profile import plan_velocity
 from .ptp import MOTION_STATES, AxisConfig, BrakedAxis, PtpState
 
@@ -42,16 +42,16 @@ class Jog(BrakedAxis):
         """Start jogging, or change the jog velocity, to ``velocity_mm_s`` [mm/s].
 
         Raises:
-            ParameterError: not finite, or ``|velocity_mm_s|`` above ``limits.max_vel``
+            ParameterError: not finite, or ``|velocity_mm_s|`` above ``limits.vel``
                 (the message names the allowed range).
         """
         require_finite("Jog", "velocity_mm_s", velocity_mm_s, "mm/s")
         limits = self._config.limits
         velocity = float(velocity_mm_s)
-        if abs(velocity) > limits.max_vel:
+        if abs(velocity) > limits.vel:
             raise ParameterError(
                 f"Jog.velocity_mm_s (={velocity!r} mm/s) is out of range: must be within "
-                f"[-{limits.max_vel}, {limits.max_vel}] mm/s (AxisLimits.max_vel)")
+                f"[-{limits.vel}, {limits.vel}] mm/s (Limits.vel)")
         if velocity == 0.0:
             self.stop()
             return

@@ -28,7 +28,7 @@ read with t0 = state entry it is off by k*t^3/3 and the move ends beside its tar
 (:func:`integrate_step_thesis_literal` keeps the printed form for the tests that show this).
 
 **Limits** (docs/spec/axis.md#2.3).  The thesis names only Vm and k.  Given an
-:class:`AxisLimits` (V, A, J) a pulse that changes the velocity by dv takes
+:class:`Limits` (V, A, J) a pulse that changes the velocity by dv takes
 ``T2 = max(sqrt(dv/J), dv/A)`` and ``k = dv/T2^2``:
 at full jerk while the peak ``k*T2`` stays below A, otherwise with the peak at A and a lower
 jerk, so the pulse stays triangular (thesis shape) instead of growing a plateau.
@@ -44,7 +44,8 @@ from dataclasses import dataclass
 from enum import IntEnum
 
 from ..errors import ParameterError
-from .limits import AxisLimits, require_finite, require_positive
+from ..limits import Limits
+from .checks import require_finite, require_positive
 
 #: Time tolerance [s]: a profile whose remaining duration is below this at a sample counts as
 #: finished at that sample (float rounding of i*T against the planned durations).
@@ -312,7 +313,7 @@ class ProfileFollower:
 _Piece = tuple[float, float, bool]
 
 
-def triangle_pulse(delta_v_mm_s: float, limits: AxisLimits) -> tuple[float, float]:
+def triangle_pulse(delta_v_mm_s: float, limits: Limits) -> tuple[float, float]:
     """Half-time T2 [s] and jerk k [mm/s^3] of a triangular pulse that changes the velocity by
     ``|delta_v_mm_s|`` starting and ending at zero acceleration (thesis ACCEL/DECCEL).
 
@@ -322,18 +323,18 @@ def triangle_pulse(delta_v_mm_s: float, limits: AxisLimits) -> tuple[float, floa
     dv = abs(delta_v_mm_s)
     if dv == 0.0:
         return 0.0, 0.0
-    t2_jerk = math.sqrt(dv / limits.max_jerk)
-    t2_acc = dv / limits.max_acc
+    t2_jerk = math.sqrt(dv / limits.jerk)
+    t2_acc = dv / limits.acc
     if t2_jerk >= t2_acc:  # peak sqrt(dv*J) <= A: full jerk
-        return t2_jerk, limits.max_jerk
-    return t2_acc, min(limits.max_acc * limits.max_acc / dv, limits.max_jerk)
+        return t2_jerk, limits.jerk
+    return t2_acc, min(limits.acc * limits.acc / dv, limits.jerk)
 
 
 def _sign(x: float) -> float:
     return 1.0 if x > 0.0 else (-1.0 if x < 0.0 else 0.0)
 
 
-def _pulse(v0: float, a0: float, v1: float, limits: AxisLimits) -> list[_Piece]:
+def _pulse(v0: float, a0: float, v1: float, limits: Limits) -> list[_Piece]:
     """Pieces taking (v0, a0) to (v1, 0) within the limits (triangular pulses).
 
     From a0 = 0 this is one thesis triangle (:func:`triangle_pulse`).  From a0 != 0:
@@ -341,7 +342,7 @@ def _pulse(v0: float, a0: float, v1: float, limits: AxisLimits) -> list[_Piece]:
     a0 -> a_peak -> 0 with one jerk magnitude k <= J and |a_peak| <= A; otherwise a0 is first
     ramped to 0 at full jerk J (the smallest overshoot) and a fresh triangle follows.
     """
-    jmax, amax = limits.max_jerk, limits.max_acc
+    jmax, amax = limits.jerk, limits.acc
     pieces: list[_Piece] = []
     dv = v1 - v0
     if a0 != 0.0:
@@ -440,7 +441,7 @@ def _check_state(where: str, state: KinematicState) -> None:
     require_finite(where, "acceleration_mm_s2", state.acceleration_mm_s2, "mm/s^2")
 
 
-def rest_to_rest_peak_velocity(distance_mm: float, limits: AxisLimits) -> float:
+def rest_to_rest_peak_velocity(distance_mm: float, limits: Limits) -> float:
     """Peak velocity [mm/s] of the rest-to-rest move over ``|distance_mm|`` (analytic).
 
     With symmetric triangles and no CONST the distance is ``2*vp*T2(vp)``:
@@ -449,13 +450,13 @@ def rest_to_rest_peak_velocity(distance_mm: float, limits: AxisLimits) -> float:
     phase covers the rest).
     """
     d = abs(distance_mm)
-    vp = (d * math.sqrt(limits.max_jerk) / 2.0) ** (2.0 / 3.0)
+    vp = (d * math.sqrt(limits.jerk) / 2.0) ** (2.0 / 3.0)
     if vp > limits.jerk_bound_velocity:
-        vp = math.sqrt(d * limits.max_acc / 2.0)
-    return min(vp, limits.max_vel)
+        vp = math.sqrt(d * limits.acc / 2.0)
+    return min(vp, limits.vel)
 
 
-def plan_rest_to_rest(start_mm: float, target_mm: float, limits: AxisLimits) -> Profile:
+def plan_rest_to_rest(start_mm: float, target_mm: float, limits: Limits) -> Profile:
     """The thesis' nominal Sled_Y move from rest at ``start_mm`` to rest at ``target_mm`` [mm].
 
     ACCEL (triangle, T2) -> CONST (Tc, possibly 0 s) -> DECEL (triangle, T2), planned
@@ -485,7 +486,7 @@ def plan_rest_to_rest(start_mm: float, target_mm: float, limits: AxisLimits) -> 
     return _build(start, pieces, float(target_mm))
 
 
-def plan_position(start: KinematicState, target_mm: float, limits: AxisLimits) -> Profile:
+def plan_position(start: KinematicState, target_mm: float, limits: Limits) -> Profile:
     """Plan from any state (p, v, a) to rest at ``target_mm`` [mm] (re-target mid-move).
 
     Not in the thesis (its Sled_Y only starts from rest).  From rest this is
@@ -509,7 +510,7 @@ def plan_position(start: KinematicState, target_mm: float, limits: AxisLimits) -
         return plan_rest_to_rest(start.position_mm, target_mm, limits)
     v0, a0 = start.velocity_mm_s, start.acceleration_mm_s2
     dist = target_mm - start.position_mm
-    vmax = limits.max_vel
+    vmax = limits.vel
 
     def pieces_for(vp: float, tc: float) -> list[_Piece]:
         return _pulse(v0, a0, vp, limits) + [(tc, 0.0, True)] + _pulse(vp, 0.0, 0.0, limits)
@@ -544,26 +545,26 @@ def plan_position(start: KinematicState, target_mm: float, limits: AxisLimits) -
     return _build(start, pieces_for(vp, tc), float(target_mm))
 
 
-def plan_velocity(start: KinematicState, velocity_mm_s: float, limits: AxisLimits) -> Profile:
+def plan_velocity(start: KinematicState, velocity_mm_s: float, limits: Limits) -> Profile:
     """Plan from any state to cruise at ``velocity_mm_s`` [mm/s] forever (jog, homing search).
 
     One pulse (v, a) -> (velocity, 0) (see :func:`plan_position`), then an endless CONST.
     Reversing passes through zero velocity inside the pulse (DECEL, then ACCEL).
 
     Raises:
-        ParameterError: the state is not finite, or ``|velocity_mm_s| > limits.max_vel``.
+        ParameterError: the state is not finite, or ``|velocity_mm_s| > limits.vel``.
     """
     _check_state("plan_velocity.start", start)
     require_finite("plan_velocity", "velocity_mm_s", velocity_mm_s, "mm/s")
-    if abs(velocity_mm_s) > limits.max_vel:
+    if abs(velocity_mm_s) > limits.vel:
         raise ParameterError(
             f"plan_velocity.velocity_mm_s (={velocity_mm_s!r} mm/s) is out of range: "
-            f"must be within [-{limits.max_vel}, {limits.max_vel}] mm/s (AxisLimits.max_vel)")
+            f"must be within [-{limits.vel}, {limits.vel}] mm/s (Limits.vel)")
     pieces = _pulse(start.velocity_mm_s, start.acceleration_mm_s2, float(velocity_mm_s), limits)
     return _build(start, pieces + [(math.inf, 0.0, True)], None)
 
 
-def plan_stop(start: KinematicState, limits: AxisLimits) -> Profile:
+def plan_stop(start: KinematicState, limits: Limits) -> Profile:
     """Plan the jerk-limited stop from any state (one pulse to (v, a) = (0, 0)).
 
     The profile's ``target_mm`` is where the axis comes to rest.
@@ -578,7 +579,7 @@ def plan_stop(start: KinematicState, limits: AxisLimits) -> Profile:
     return _build(start, pieces, stop_mm)
 
 
-def stopping_distance_mm(state: KinematicState, limits: AxisLimits) -> float:
+def stopping_distance_mm(state: KinematicState, limits: Limits) -> float:
     """Signed distance [mm] the axis travels during :func:`plan_stop` from ``state``."""
     pieces = _pulse(state.velocity_mm_s, state.acceleration_mm_s2, 0.0, limits)
     return _displacement(state.velocity_mm_s, state.acceleration_mm_s2, pieces)

@@ -39,7 +39,8 @@ from dataclasses import dataclass
 from enum import Enum, IntEnum
 
 from ..errors import ParameterError
-from .limits import AxisLimits, require_finite, require_non_negative, require_positive
+from ..limits import Limits
+from .checks import require_finite, require_non_negative, require_positive
 from .profile import (
     KinematicState,
     Phase,
@@ -130,16 +131,16 @@ class AxisConfig:
         stop_time_s: hold time after the brake closed [s] (thesis WAIT ``Tstop``), >= 0.
     """
 
-    limits: AxisLimits
+    limits: Limits
     sample_period_s: float
     brake_release_s: float = 0.0
     brake_engage_s: float = 0.0
     stop_time_s: float = 0.0
 
     def __post_init__(self) -> None:
-        if not isinstance(self.limits, AxisLimits):
+        if not isinstance(self.limits, Limits):
             raise ParameterError(
-                f"AxisConfig.limits (={self.limits!r}) must be an AxisLimits instance")
+                f"AxisConfig.limits (={self.limits!r}) must be a Limits instance")
         require_positive("AxisConfig", "sample_period_s", self.sample_period_s, "s")
         require_non_negative("AxisConfig", "brake_release_s", self.brake_release_s, "s")
         require_non_negative("AxisConfig", "brake_engage_s", self.brake_engage_s, "s")
@@ -316,7 +317,7 @@ class PointToPoint(BrakedAxis):
 
     Example::
 
-        axis = PointToPoint(AxisConfig(AxisLimits(500, 5000, 1e5), 0.001, 0.05, 0.05, 0.1))
+        axis = PointToPoint(AxisConfig(Limits(500, 5000, 1e5), 0.001, 0.05, 0.05, 0.1))
         axis.set_target(150.0)
         while (out := axis.update()).result is MotionResult.WORKING:
             send(out.position_mm)

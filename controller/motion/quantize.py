@@ -22,7 +22,7 @@ import math
 from dataclasses import dataclass
 
 from ..errors import ParameterError
-from .limits import is_integer, require_finite, require_positive
+from .checks import is_integer, require_finite, require_positive
 
 INT32_MIN = -(2 ** 31)
 INT32_MAX = 2 ** 31 - 1

@@ -21,9 +21,10 @@ from pathlib import Path
 from typing import Any, Iterable
 
 from ..errors import ConfigError, ParameterError
-from ..yamlmarks import MAX_POSITION, MISSING, Section, closest, describe
-from ..tracking import PLANNERS, Limits, Mode, Rates, SoftMcOptions, TrackerParams
+from ..limits import Limits
+from ..tracking import PLANNERS, Mode, Rates, SoftMcOptions, TrackerParams
 from ..tracking.types import DEFAULT_ROT, DEFAULT_TRANS
+from ..yamlmarks import MAX_POSITION, MISSING, Section, closest, describe
 
 __all__ = ["MAX_POSITION_MM", "MAX_SAMPLES", "CsvMaster", "EncoderSpec", "SampledRun",
            "Segment", "SegmentMaster", "segment_master", "tracker_params", "unit_vector"]

@@ -21,9 +21,10 @@ from pathlib import Path
 
 import numpy as np
 
+from ..limits import Limits
 from ..tracking import Mode, MotionState, Tracker, TrackError, TrackerParams, TrackState
 from ..tracking.metrics import TraceMetrics, analyze
-from ..tracking.types import EffectiveLimits, Limits
+from ..tracking.types import EffectiveLimits
 from .master import master_states
 from .scenario import Scenario, load_scenario
 

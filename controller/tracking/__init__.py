@@ -6,12 +6,16 @@ Public API::
     tracker = Tracker(TrackerParams(sample_time_s=0.002, planner="softmc"), MotionState.at(0, 0, 0))
     tracker.engage()
     out = tracker.update(master_state)      # once per sample
+
+``Limits`` is :class:`controller.limits.Limits` (the one limits type of every layer),
+exported here too because ``TrackerParams`` takes it.
 """
 
 from .estimator import MasterEstimate, MasterEstimator, unwrap_counts
 from .planner import PLANNER_CODES, PLANNERS, planner_factory
 from .tracker import Tracker
-from .types import (Imfs, Limits, Mode, MotionState, Rates, SoftMcOptions, TrackError,
+from ..limits import Limits
+from .types import (Imfs, Mode, MotionState, Rates, SoftMcOptions, TrackError,
                     TrackerOutput, TrackerParams, TrackState)
 
 __all__ = [

@@ -64,8 +64,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import ParameterError, StateError
+from ..limits import Limits
 from .desync import Desync, LinearPath
-from .types import Limits, Mode, MotionState, TrackerParams, TrackError, TrackState
+from .types import Mode, MotionState, TrackerParams, TrackError, TrackState
 
 __all__ = ["BatchOutput", "BatchTracker", "benchmark"]
 

@@ -59,7 +59,8 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from ..errors import ParameterError
-from .types import Limits, MotionState, Vec3
+from ..limits import Limits
+from .types import MotionState, Vec3
 
 
 class ConditionerDesign(IntEnum):

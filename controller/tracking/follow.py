@@ -29,7 +29,7 @@ from __future__ import annotations
 import math
 from typing import Any
 
-from .types import Limits
+from ..limits import Limits
 from .vec import Vec
 
 #: lengths (mm or deg) -> Ruckig units (m or kdeg), as in optimal.py

@@ -24,7 +24,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .types import Limits, TrackState
+from ..limits import Limits
+from .types import TrackState
 
 PHASES = ("approach", "switch", "after", "desync")
 QUANTITIES = ("vel", "acc", "jerk")

@@ -155,7 +155,7 @@ import math
 
 from ruckig import ControlInterface, InputParameter, Ruckig, Synchronization, Trajectory
 
-from .types import Limits
+from ..limits import Limits
 from .vec import Vec
 
 #: rows (u1, u2, u3) of a rotation R (q = R e); None stands for the world axes

@@ -14,7 +14,8 @@ import importlib
 from typing import Callable, Protocol
 
 from ..errors import ParameterError
-from .types import Limits, TrackerParams
+from ..limits import Limits
+from .types import TrackerParams
 from .vec import Vec
 
 

@@ -44,7 +44,8 @@ from __future__ import annotations
 
 import math
 
-from .types import Limits, SoftMcOptions
+from ..limits import Limits
+from .types import SoftMcOptions
 from .vec import Vec
 
 

@@ -14,6 +14,7 @@ from dataclasses import dataclass, field, replace
 from enum import IntEnum
 
 from ..errors import ParameterError
+from ..limits import Limits
 
 Vec3 = tuple[float, float, float]
 ZERO3: Vec3 = (0.0, 0.0, 0.0)
@@ -62,33 +63,6 @@ class TrackError(IntEnum):
     APPROACH_TIMEOUT = 4  #: not synchronised within ``approach_timeout_s``
     ITEM_MISSED = 5  #: softMC error 30238 "Item missed" (conveyor model)
     MASTER_LOST = 6  #: master samples stopped arriving (controller shell)
-
-
-@dataclass(frozen=True, slots=True)
-class Limits:
-    """Velocity/acceleration/jerk bounds of one channel (vector-norm limits).
-
-    Units: mm/s, mm/s^2, mm/s^3 for translation; deg/s, deg/s^2, deg/s^3 for rotation.
-    """
-
-    vel: float
-    acc: float
-    jerk: float
-
-    def __post_init__(self) -> None:
-        for name in ("vel", "acc", "jerk"):
-            value = getattr(self, name)
-            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
-                raise ParameterError(f"limit {name} (={value!r}) must be a finite number > 0")
-
-    def scaled(self, vel: float = 1.0, acc: float = 1.0, jerk: float = 1.0) -> "Limits":
-        """These limits with each bound multiplied by a factor."""
-        return Limits(self.vel * vel, self.acc * acc, self.jerk * jerk)
-
-    def capped(self, other: "Limits") -> "Limits":
-        """Component-wise minimum with ``other``."""
-        return Limits(min(self.vel, other.vel), min(self.acc, other.acc),
-                      min(self.jerk, other.jerk))
 
 
 @dataclass(frozen=True, slots=True)
@@ -292,6 +266,10 @@ class TrackerParams:
 
 @dataclass(frozen=True, slots=True)
 class EffectiveLimits:
+    """The limits a tracker runs with: each channel's sync and de-sync :class:`Limits` after
+    the robot's maxima and the rates (:meth:`TrackerParams.effective`,
+    docs/spec/tracking.md#2.5)."""
+
     sync_trans: Limits
     desync_trans: Limits
     sync_rot: Limits

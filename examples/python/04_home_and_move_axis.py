@@ -51,7 +51,7 @@ def main(argv: list[str] | None = None) -> dict:
     print(f"move from: {m.start_mm:.4f} mm")
     print(f"move end: {m.end_mm:.4f} mm, 6064h = {m.end_counts} counts")
     print(f"move time: {m.time_s:.3f} s ({m.cycles} cycles of {r['period_s'] * 1e3:g} ms)")
-    lim = ax.motion
+    lim = ax.motion.limits
     bound = math.ceil(ax.scale.counts_per_unit * lim.vel * r["period_s"])
     print(f"largest 607Ah step per cycle: {r['max_step_counts']} counts (bound {bound}: "
           f"V = {lim.vel:g} mm/s)")

@@ -84,7 +84,6 @@ from ...errors import CanError
 from ...kinematics.counts import axis_unit
 from ...motion import AxisConfig as MotionAxisConfig
 from ...motion import (
-    AxisLimits,
     GotoY,
     HomingConfig,
     HomingTimeouts,
@@ -230,7 +229,7 @@ class MotionReport:
 
 def _motion_axis_config(ax: AxisConfig, period_s: float) -> MotionAxisConfig:
     m = ax.motion
-    return MotionAxisConfig(AxisLimits(m.vel, m.acc, m.jerk), period_s, m.brake_release_s,
+    return MotionAxisConfig(m.limits, period_s, m.brake_release_s,
                             m.brake_engage_s, m.stop_time_s)
 
 
@@ -385,7 +384,7 @@ class _SetpointJob(Job):
         m = self.ax.motion
         # an upper bound: the longest stop (from full speed and full acceleration), the
         # brake and the stop time, and some cycles of margin
-        stop_s = 2.0 * (m.vel / m.acc + m.acc / m.jerk)
+        stop_s = 2.0 * (m.limits.vel / m.limits.acc + m.limits.acc / m.limits.jerk)
         return stop_s + m.brake_engage_s + m.stop_time_s + 20 * self.period_s
 
     checks_limits = True
@@ -439,9 +438,9 @@ class JogJob(_SetpointJob):
 
     def __init__(self, ax: AxisConfig, period_s: float, speed: float, time_s: float) -> None:
         super().__init__(ax, period_s)
-        if not math.isfinite(speed) or abs(speed) > ax.motion.vel or speed == 0:
+        if not math.isfinite(speed) or abs(speed) > ax.motion.limits.vel or speed == 0:
             raise MotionError(f"axis {ax.name}: jog speed {speed} must be non-zero and "
-                              f"within +-{ax.motion.vel:g} (motion.vel)")
+                              f"within +-{ax.motion.limits.vel:g} (motion.vel)")
         if not (math.isfinite(time_s) and time_s > 0):
             raise MotionError(f"jog time {time_s} must be a finite number of seconds > 0")
         self.speed = float(speed)
@@ -490,7 +489,7 @@ class GotoYJob(_SetpointJob):
         h = ax.homing or AxisHomingConfig()
         m = ax.motion
         self.config = HomingConfig(
-            AxisLimits(m.vel, m.acc, m.jerk), period_s, h.search_vel, h.creep_vel,
+            m.limits, period_s, h.search_vel, h.creep_vel,
             h.push_in_counts, ax.scale.counts_per_unit, h.back_off, h.direction,
             m.brake_release_s, m.brake_engage_s,
             HomingTimeouts(total_s=h.timeout_s, **dict(h.state_timeouts)))

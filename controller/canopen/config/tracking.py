@@ -97,7 +97,8 @@ from typing import TYPE_CHECKING, Any
 
 from ...errors import ConfigError, ParameterError
 from ...kinematics import KINEMATICS, AxisScale
-from ...tracking import PLANNERS, Limits, Mode, Rates, SoftMcOptions, TrackerParams
+from ...limits import Limits
+from ...tracking import PLANNERS, Mode, Rates, SoftMcOptions, TrackerParams
 from ...tracking.conditioning import ConditionerDesign
 from ...yamlmarks import Section
 from ..protocol import od as odm
@@ -139,11 +140,11 @@ class ConveyorConditioning:
 
 @dataclass(frozen=True, slots=True)
 class AxisMotionConfig:
-    """Per-axis limits and brake times for point-to-point moves, homing and jog."""
+    """Per-axis ``motion:`` section: the axis' limits and brake times for point-to-point
+    moves, homing and jog (``motion.vel``/``acc``/``jerk`` in the YAML, [mm/s, mm/s^2,
+    mm/s^3] or, for a rotary axis, [deg/s, ...]; times [s])."""
 
-    vel: float = 200.0
-    acc: float = 2000.0
-    jerk: float = 50000.0
+    limits: Limits = Limits(200.0, 2000.0, 50000.0)
     brake_release_s: float = 0.0
     brake_engage_s: float = 0.0
     stop_time_s: float = 0.0
@@ -380,8 +381,8 @@ def _axis_motion(s: Section | None) -> AxisMotionConfig:
     if s is None:
         return d
     out = AxisMotionConfig(
-        vel=s.float("vel", d.vel, above=0.0), acc=s.float("acc", d.acc, above=0.0),
-        jerk=s.float("jerk", d.jerk, above=0.0),
+        Limits(s.float("vel", d.limits.vel, above=0.0), s.float("acc", d.limits.acc, above=0.0),
+               s.float("jerk", d.limits.jerk, above=0.0)),
         brake_release_s=s.float("brake_release_s", 0.0, min=0.0),
         brake_engage_s=s.float("brake_engage_s", 0.0, min=0.0),
         stop_time_s=s.float("stop_time_s", 0.0, min=0.0))
@@ -400,7 +401,8 @@ def _axis_homing(s: Section | None, motion: AxisMotionConfig, cfg: BusConfig | N
         return None
     d = AxisHomingConfig()
     method = s.str("method", d.method, choices=HOMING_METHODS)
-    search = s.float("search_vel", min(d.search_vel, motion.vel), above=0.0, max=motion.vel)
+    search = s.float("search_vel", min(d.search_vel, motion.limits.vel), above=0.0,
+                     max=motion.limits.vel)
     creep = s.float("creep_vel", min(d.creep_vel, search), above=0.0, max=search)
     st = s.section("state_timeouts", None)
     state_timeouts: list[tuple[str, float]] = []

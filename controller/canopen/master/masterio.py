@@ -27,7 +27,8 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 from ...kinematics import EncoderScale
-from ...tracking import Limits, MasterEstimate, MasterEstimator
+from ...limits import Limits
+from ...tracking import MasterEstimate, MasterEstimator
 from ...tracking.conditioning import (ConditionedMaster, ConditioningParams, EncoderModel,
                                       EventKind, MasterConditioner)
 from ..config.concise import effective_pdos
