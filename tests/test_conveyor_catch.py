@@ -7,8 +7,9 @@ import math
 import numpy as np
 import pytest
 
-from controller.conveyor import (ConveyorCell, EncoderSource, FrameLimits, Location,
-                                 MovingFrame, RobotGroup, SimulatedAxis, Window)
+from controller.conveyor import (ConveyorCell, EncoderSource, Location,
+                                 MovingFrame, RobotGroup, SimulatedAxis, Window,
+                                 frame_limits)
 from controller.conveyor.catch import min_time_double_integrator
 from controller.conveyor.location import q_axis_angle
 from controller.conveyor.replay import (TriggerEvent, read_encoder_log, read_trigger_log,
@@ -109,7 +110,7 @@ def test_can_catch_says_no_early_with_the_reason():
     assert not p.can_catch and p.early and "sync velocity" in p.reason
 
     over = MovingFrame("cnv", [SimulatedAxis.constant_speed(700.0)],
-                       limits=FrameLimits(VelocityMaxTrans=600.0))
+                       limits=frame_limits(VelocityMaxTrans=600.0))
     cell, robot = make(over)
     p = robot.can_catch(over, robot.trigger(over))
     assert not p.can_catch and "VelocityMax" in p.reason

@@ -8,13 +8,15 @@ import random
 
 import pytest
 
-from controller.conveyor import (ArcGeometryError, EncoderSource, FrameLimits, FrameSource,
+from controller.conveyor import (FRAME_LIMITS, ArcGeometryError, EncoderSource, FrameSource,
                                  Location, MovingFrame, RobotGroup, SimulatedAxis, SourceState,
-                                 TriggerEntry, Window, WindowPosition, arc_from_points)
+                                 TriggerEntry, Window, WindowPosition, arc_from_points,
+                                 frame_limits)
 from controller.conveyor.frames import RotaryGeometry
 from controller.conveyor.location import (q_axis_angle, q_mul, q_rotate, v_cross, v_dot, v_norm,
                                           v_sub)
 from controller.errors import ParameterError, StateError
+from controller.limits import CartesianLimits, Limits
 from controller.tracking import TrackError, TrackerParams
 
 T = 0.002
@@ -204,12 +206,19 @@ def test_type_change_while_engaged_is_an_error_and_rotary_needs_nof_1():
 
 
 def test_functional_change_2_frame_limits_names_and_defaults():
-    L = FrameLimits()
-    assert (L.VelocityMaxTrans, L.AccelerationMaxTrans, L.JerkMaxTrans) == (1000, 1000, 1000)
-    assert (L.VelocityMaxRot, L.AccelerationMaxRot, L.JerkMaxRot) == (100, 100, 100)
-    with pytest.raises(ParameterError, match="VelocityMaxTrans"):
-        FrameLimits(VelocityMaxTrans=0)
-    f = MovingFrame("cnv", [SimulatedAxis.constant_speed(1.0)], limits=FrameLimits(
+    L = FRAME_LIMITS
+    assert (L.trans.vel, L.trans.acc, L.trans.jerk) == (1000, 1000, 1000)
+    assert (L.rot.vel, L.rot.acc, L.rot.jerk) == (100, 100, 100)
+    assert MovingFrame("cnv").limits is FRAME_LIMITS
+    assert frame_limits(JerkMaxRot=7.0, AccelerationMaxTrans=3.0) == CartesianLimits(
+        Limits(1000.0, 3.0, 1000.0), Limits(100.0, 100.0, 7.0))
+    with pytest.raises(ParameterError, match=r"<Moving Frame>\.VelocityMaxTrans \(=0\)"):
+        frame_limits(VelocityMaxTrans=0)
+    with pytest.raises(ParameterError, match="VelocityMaxTran: unknown limit"):
+        frame_limits(VelocityMaxTran=1.0)
+    with pytest.raises(ParameterError, match="must be a CartesianLimits"):
+        MovingFrame("cnv", limits=Limits(1.0, 1.0, 1.0))  # type: ignore[arg-type]
+    f = MovingFrame("cnv", [SimulatedAxis.constant_speed(1.0)], limits=frame_limits(
         VelocityMaxTrans=500.0))
     it = item([0.0])
     assert f.check_limits(f.point(it, [SourceState(0.0, 400.0)])) == TrackError.NONE

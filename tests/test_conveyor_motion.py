@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from controller.conveyor import Location, Motion, MotionLimits, SCurve, VirtualRobot
+from controller.conveyor import MOTION_LIMITS, Location, Motion, SCurve, VirtualRobot
 from controller.conveyor.location import q_axis_angle
 
 T = 0.002
@@ -26,7 +26,7 @@ def test_scurve_reaches_the_distance_within_its_limits(dist):
 
 
 def test_virtual_robot_absolute_relative_superposed_and_shift():
-    v = VirtualRobot(Location.at(0, 0, 0), T, MotionLimits())
+    v = VirtualRobot(Location.at(0, 0, 0), T, MOTION_LIMITS)
     target = Location((100.0, 50.0, 0.0), q_axis_angle((0, 0, 1), 30.0))
     v.enter(Motion(target))
     v.enter(Motion(Location.at(0, 0, 20), relative=True, superpose=True))

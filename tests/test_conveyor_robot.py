@@ -9,12 +9,15 @@ import math
 import numpy as np
 import pytest
 
-from controller.conveyor import (ITEM_MISSED_CODE, ConveyorCell, FrameBusyError, FrameLimits,
-                                 LinkState, Location, MotionLimits, MovingFrame, NoFrameError,
-                                 RobotGroup, SimulatedAxis, TooManyFramesError, Window)
+from controller.conveyor import (FRAME_LIMITS, ITEM_MISSED_CODE, MOTION_LIMITS, ConveyorCell,
+                                 FrameBusyError,
+                                 LinkState, Location, MovingFrame, NoFrameError,
+                                 RobotGroup, SimulatedAxis, TooManyFramesError, Window,
+                                 frame_limits)
 from controller.conveyor.location import q_axis_angle
 from controller.conveyor.telemetry import ItemStatus
 from controller.errors import ParameterError, StateError
+from controller.limits import CartesianLimits
 from controller.tracking import Imfs, Limits, TrackError, TrackerParams
 
 T = 0.002
@@ -30,7 +33,7 @@ def params(**kw) -> TrackerParams:
 
 
 def belt(name="cnv", speed=SPEED, direction=(1, 0, 0), window=(50.0, 2000.0), origin=(0, 0, 0),
-         limits=FrameLimits()):
+         limits=FRAME_LIMITS):
     return MovingFrame(name, [SimulatedAxis.constant_speed(speed)], directions=[direction],
                        origin=Location.at(*origin), window=Window.single(*window),
                        limits=limits)
@@ -161,7 +164,7 @@ def test_functional_change_2_sync_and_desync_limits_shape_approach_and_stop():
 
 
 def test_functional_change_2_master_above_frame_limits_is_an_error_that_desyncs():
-    f = belt(speed=600.0, limits=FrameLimits(VelocityMaxTrans=500.0))
+    f = belt(speed=600.0, limits=frame_limits(VelocityMaxTrans=500.0))
     cell, robot = make([f])
     robot.master_frame = f
     robot.trigger(f)
@@ -300,7 +303,7 @@ def synced_with_motion(target_offset=(0.0, 100.0, 0.0)):
     robot.master_frame = f
     item = robot.trigger(f)
     sync(cell, robot)
-    slow = MotionLimits(vel=100.0, acc=500.0, jerk=5000.0)
+    slow = CartesianLimits(Limits(100.0, 500.0, 5000.0), MOTION_LIMITS.rot)
     target = Location.at(*(a + b for a, b in zip(robot.virtual.location.pos, target_offset)))
     m = robot.moves(target, limits=slow)
     run(cell, 5)
@@ -496,8 +499,8 @@ def test_functional_change_11_item_missed_30238_starts_desync_and_keeps_motions(
     cell, robot = make([f], tracker=slow, start=(-800.0, 300.0, 100.0))
     robot.master_frame = f
     item = robot.trigger(f)
-    m = robot.moves_rel((0.0, 0.0, 200.0), limits=MotionLimits(vel=50.0, acc=200.0,
-                                                               jerk=2000.0))
+    m = robot.moves_rel((0.0, 0.0, 200.0), limits=CartesianLimits(
+        Limits(50.0, 200.0, 2000.0), MOTION_LIMITS.rot))
     outs = run(cell, 2000, until=lambda o: o.error != TrackError.NONE)
     o = outs[-1]
     assert o.error == TrackError.ITEM_MISSED
@@ -593,10 +596,10 @@ def test_phase2_frame_max_values_reduce_the_superimposed_motion():
     the combined (frame + motion) speed stays within the robot's maximum; without robot
     maxima, or when not synced, the motion's own limits apply; nothing left is an error."""
     robot_max = Limits(800.0, 20000.0, 400000.0)
-    own = MotionLimits(vel=700.0, acc=15000.0, jerk=300000.0)
+    own = CartesianLimits(Limits(700.0, 15000.0, 300000.0), MOTION_LIMITS.rot)
 
     def peak_motion_speed(frame_vmax, *, synced=True, tracker=None):
-        f = belt(window=(0.0, 5000.0), limits=FrameLimits(VelocityMaxTrans=frame_vmax))
+        f = belt(window=(0.0, 5000.0), limits=frame_limits(VelocityMaxTrans=frame_vmax))
         cell, robot = make([f], tracker=tracker or params(robot_max_trans=robot_max),
                            motion_limits=own)
         if synced:
@@ -610,10 +613,10 @@ def test_phase2_frame_max_values_reduce_the_superimposed_motion():
         return m, float(vy.max()), outs, robot
 
     m, v, _, _ = peak_motion_speed(300.0)
-    assert m.limits.vel == pytest.approx(800.0 - 300.0) and v == pytest.approx(500.0, rel=1e-3)
-    assert m.limits.acc == 15000.0                    # own limit lower than 20000 - 1000
+    assert m.limits.trans.vel == pytest.approx(800.0 - 300.0) and v == pytest.approx(500.0, rel=1e-3)
+    assert m.limits.trans.acc == 15000.0                    # own limit lower than 20000 - 1000
     m, v, _, _ = peak_motion_speed(600.0)             # a faster frame: a slower motion
-    assert m.limits.vel == pytest.approx(200.0) and v == pytest.approx(200.0, rel=1e-3)
+    assert m.limits.trans.vel == pytest.approx(200.0) and v == pytest.approx(200.0, rel=1e-3)
     assert SPEED + v <= robot_max.vel                 # combined speed within the robot's max
     m, v, _, _ = peak_motion_speed(300.0, synced=False)   # not synchronised: own limits
     assert m.limits is None and v == pytest.approx(700.0, rel=1e-3)

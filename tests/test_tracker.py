@@ -209,7 +209,7 @@ def test_bad_parameters_name_the_value(kw, needle):
 
 
 def test_limits_validation():
-    with pytest.raises(ParameterError, match=r"limit acc \(=-1\.0\)"):
+    with pytest.raises(ParameterError, match=r"Limits\.acc \(=-1\.0 mm/s\^2"):
         Limits(1.0, -1.0, 1.0)
 
 

@@ -79,7 +79,7 @@ def main(argv: Sequence[str] | None = None, prog: str = "cantrack capacity") -> 
     if args.speeds:
         speeds = _range(args.speeds, "speeds")
     else:
-        top = min(sc.frame.limits.VelocityMaxTrans, sc.params.effective().sync_trans.vel)
+        top = min(sc.frame.limits.trans.vel, sc.params.effective().sync_trans.vel)
         speeds = _range(f"{0.1 * top}:{top}:20", "speeds")
     w = sc.frame.window
     length = w.downstream[0] - w.upstream[0]

@@ -5,8 +5,8 @@ Spec: docs/spec/conveyor.md (softMC's conveyor model) on top of the tracking cor
 
 Public API::
 
-    from controller.conveyor import (Location, MovingFrame, FrameLimits, Window, RobotGroup,
-                                     ConveyorCell, SimulatedAxis, EncoderSource, MotionLimits)
+    from controller.conveyor import (Location, MovingFrame, Window, RobotGroup, ConveyorCell,
+                                     SimulatedAxis, EncoderSource, frame_limits)
     cnv = MovingFrame("cnv", [SimulatedAxis.constant_speed(300.0)], directions=[(1, 0, 0)],
                       window=Window.single(100.0, 800.0))
     robot = RobotGroup("scara", TrackerParams(sample_time_s=0.002, planner="softmc"),
@@ -18,7 +18,8 @@ Public API::
     out = cell.step()["scara"]          # once per sample: out.setpoint, out.imfs, out.events
 
 Modules: ``location`` (⊕, ⊖, ':', quaternions), ``frames`` (linear and rotary geometry),
-``frame`` (MovingFrame, FrameLimits), ``kinematics`` (robot type and dimension, checked at
+``frame`` (MovingFrame; its limits: ``FRAME_LIMITS``, ``frame_limits`` by softMC's names, a
+:class:`controller.limits.CartesianLimits`), ``kinematics`` (robot type and dimension, checked at
 MasterFrame assignment), ``sources``, ``window``, ``triggers``, ``motion``
 (virtual robot), ``tracker`` (the core tracker with the arc de-sync), ``robot`` (RobotGroup:
 MasterFrame, slave, IMFS, hand-off), ``catch`` (can it catch this item?), ``telemetry``
@@ -30,11 +31,12 @@ from .catch import CatchPrediction, predict_catch
 from .cell import ConveyorCell
 from .errors import (ITEM_MISSED_CODE, ArcGeometryError, FrameBusyError, NoFrameError,
                      TooManyFramesError, TriggerBufferFull)
-from .frame import LINEAR, ROTARY, ROTARY_DECOUPLED, FrameLimits, MovingFrame
+from .frame import (FRAME_LIMITS, LINEAR, ROTARY, ROTARY_DECOUPLED, SOFTMC_LIMIT_NAMES,
+                    MovingFrame, frame_limits)
 from .frames import ArcGeometry, FramePoint, LinearGeometry, RotaryGeometry, arc_from_points
 from .kinematics import Kinematics, KinematicsError, RobotType
 from .location import Location, compound, oplus, ominus, q_axis_angle
-from .motion import KEEP, Motion, MotionLimits, SCurve, VirtualRobot
+from .motion import KEEP, MOTION_LIMITS, Motion, SCurve, VirtualRobot
 from .robot import Event, FrameLink, LinkState, RobotGroup, RobotOutput
 from .sources import EncoderSource, FrameSource, SimulatedAxis, SourceState
 from .telemetry import ItemRecord, ItemStatus
@@ -44,13 +46,13 @@ from .window import Window, WindowPosition
 
 __all__ = [
     "ArcGeometry", "ArcGeometryError", "ArcPath", "CatchPrediction", "ConveyorCell",
-    "ConveyorTracker", "EncoderSource", "Event", "FrameBusyError", "FrameLimits", "FrameLink",
-    "FramePoint", "FrameSource", "ITEM_MISSED_CODE", "ItemRecord", "ItemStatus", "KEEP",
+    "ConveyorTracker", "EncoderSource", "Event", "FRAME_LIMITS", "FrameBusyError", "FrameLink",
+    "FramePoint", "FrameSource", "ITEM_MISSED_CODE", "ItemRecord", "ItemStatus", "KEEP", "MOTION_LIMITS",
     "Kinematics", "KinematicsError", "RobotType",
-    "LINEAR", "LinearGeometry", "LinkState", "Location", "Motion", "MotionLimits",
-    "MovingFrame", "NoFrameError", "ROTARY", "ROTARY_DECOUPLED", "RobotGroup", "RobotOutput",
+    "LINEAR", "LinearGeometry", "LinkState", "Location", "Motion",
+    "MovingFrame", "NoFrameError", "ROTARY", "ROTARY_DECOUPLED", "SOFTMC_LIMIT_NAMES", "RobotGroup", "RobotOutput",
     "RotaryGeometry", "SCurve", "SimulatedAxis", "SourceState", "TooManyFramesError",
     "TriggerBuffer", "TriggerBufferFull", "TriggerEntry", "VirtualRobot", "Window",
-    "WindowPosition", "arc_from_points", "compound", "ominus", "oplus", "predict_catch",
+    "WindowPosition", "arc_from_points", "compound", "frame_limits", "ominus", "oplus", "predict_catch",
     "q_axis_angle",
 ]

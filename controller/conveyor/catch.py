@@ -137,7 +137,7 @@ def predict_catch(robot, frame: MovingFrame | None = None, item: TriggerEntry | 
     pt = geo.point(c, cd, (0.0,) * geo.nof, item.dr_mm, item)
     speed = math.sqrt(sum(x * x for x in pt.vel))
     common: _Timing = {"enter_in_s": t_enter, "leave_in_s": t_leave}
-    if speed > fr.limits.VelocityMaxTrans or abs(pt.ang_vel) > fr.limits.VelocityMaxRot:
+    if speed > fr.limits.trans.vel or abs(pt.ang_vel) > fr.limits.rot.vel:
         return CatchPrediction(False, f"the frame moves faster ({speed:.6g} mm/s, "
                                       f"{abs(pt.ang_vel):.6g} deg/s) than its VelocityMax",
                                name, iid, True, **common)

@@ -23,7 +23,8 @@ Errors where softMC puts them (docs/spec/conveyor.md#3.1, #3.4.1):
   is not linked to any robot, and when the frame is assigned to a robot's MasterFrame (the
   "circle pre-calculation").  While linked, the pre-calculated geometry is used.
 
-Limits (docs/spec/conveyor.md#3.5, softMC's names and defaults): VelocityMaxTrans 1000 mm/s,
+Limits (docs/spec/conveyor.md#3.5, :data:`FRAME_LIMITS`, :func:`frame_limits` by softMC's
+names; defaults): VelocityMaxTrans 1000 mm/s,
 AccelerationMaxTrans 1000 mm/s^2, JerkMaxTrans 1000 mm/s^3, VelocityMaxRot 100 deg/s,
 AccelerationMaxRot 100 deg/s^2, JerkMaxRot 100 deg/s^3.  A master above the velocity or
 acceleration maxima is an error (the tracker's MASTER_VELOCITY / MASTER_ACCELERATION, which
@@ -33,11 +34,12 @@ starts the de-sync); jerk is not monitored (softMC monitors "velocities & accele
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, fields
+import numbers
 from typing import TYPE_CHECKING, Sequence
 
 from ..errors import ParameterError, StateError
-from ..tracking import Limits, TrackError
+from ..limits import CartesianLimits, Limits
+from ..tracking import TrackError
 from .frames import FramePoint, GroupGeometry, LinearGeometry, RotaryGeometry
 from .kinematics import Kinematics
 from .location import Location, Vec3, as_location, v_norm, vec3
@@ -62,34 +64,40 @@ def _direction(frame: str, i: int, d: Sequence[float]) -> Vec3:
     return t
 
 
-@dataclass(frozen=True, slots=True)
-class FrameLimits:
-    """``<Moving Frame>.{Velocity|Acceleration|Jerk}Max{Trans|Rot}`` with softMC's defaults.
+#: ``<Moving Frame>.{Velocity|Acceleration|Jerk}Max{Trans|Rot}`` with softMC's defaults
+#: (docs/spec/conveyor.md#3.5): 1000 mm/s, 1000 mm/s^2, 1000 mm/s^3; 100 deg/s, 100 deg/s^2,
+#: 100 deg/s^3
+FRAME_LIMITS = CartesianLimits(Limits(1000.0, 1000.0, 1000.0), Limits(100.0, 100.0, 100.0))
 
-    Units: mm/s, mm/s^2, mm/s^3; deg/s, deg/s^2, deg/s^3.
+#: softMC's names of a frame's limits -> (channel, bound) of :class:`CartesianLimits`
+SOFTMC_LIMIT_NAMES: dict[str, tuple[str, str]] = {
+    "VelocityMaxTrans": ("trans", "vel"), "AccelerationMaxTrans": ("trans", "acc"),
+    "JerkMaxTrans": ("trans", "jerk"), "VelocityMaxRot": ("rot", "vel"),
+    "AccelerationMaxRot": ("rot", "acc"), "JerkMaxRot": ("rot", "jerk"),
+}
+
+
+def frame_limits(base: CartesianLimits = FRAME_LIMITS, **softmc: float) -> CartesianLimits:
+    """``base`` (softMC's defaults) with the bounds given by their softMC names, e.g.
+    ``frame_limits(VelocityMaxTrans=500.0)`` [mm/s, mm/s^2, mm/s^3; deg/s, ...].
+
+    Raises:
+        ParameterError: an unknown name, or a bound that is not a finite number > 0 (the
+            message names ``<Moving Frame>.<name>``).
     """
-
-    VelocityMaxTrans: float = 1000.0
-    AccelerationMaxTrans: float = 1000.0
-    JerkMaxTrans: float = 1000.0
-    VelocityMaxRot: float = 100.0
-    AccelerationMaxRot: float = 100.0
-    JerkMaxRot: float = 100.0
-
-    def __post_init__(self) -> None:
-        for f in fields(self):
-            v = getattr(self, f.name)
-            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
-                raise ParameterError(f"<Moving Frame>.{f.name} (={v!r}) must be a finite "
-                                     "number > 0")
-
-    @property
-    def trans(self) -> Limits:
-        return Limits(self.VelocityMaxTrans, self.AccelerationMaxTrans, self.JerkMaxTrans)
-
-    @property
-    def rot(self) -> Limits:
-        return Limits(self.VelocityMaxRot, self.AccelerationMaxRot, self.JerkMaxRot)
+    bounds = {"trans": {"vel": base.trans.vel, "acc": base.trans.acc, "jerk": base.trans.jerk},
+              "rot": {"vel": base.rot.vel, "acc": base.rot.acc, "jerk": base.rot.jerk}}
+    for name, value in softmc.items():
+        if name not in SOFTMC_LIMIT_NAMES:
+            raise ParameterError(f"<Moving Frame>.{name}: unknown limit (known: "
+                                 + ", ".join(SOFTMC_LIMIT_NAMES) + ")")
+        if not (isinstance(value, numbers.Real) and not isinstance(value, bool)
+                and math.isfinite(value) and value > 0):
+            raise ParameterError(f"<Moving Frame>.{name} (={value!r}) must be a finite "
+                                 "number > 0")
+        channel, bound = SOFTMC_LIMIT_NAMES[name]
+        bounds[channel][bound] = value
+    return CartesianLimits(Limits(**bounds["trans"]), Limits(**bounds["rot"]))
 
 
 class MovingFrame:
@@ -112,7 +120,7 @@ class MovingFrame:
                  arc_point: Sequence[float] | None = None,
                  downstream: Sequence[float] | None = None, up_master: float = 0.0,
                  down_master: float | None = None, deg_per_unit: float | None = None,
-                 limits: FrameLimits = FrameLimits(), window: Window | None = None,
+                 limits: CartesianLimits = FRAME_LIMITS, window: Window | None = None,
                  trigger_delay_s: float = 0.0, world: "Kinematics | None" = None) -> None:
         self.name = str(name)
         #: the kinematics of the world frame the frame's object is given in (None: the
@@ -139,6 +147,9 @@ class MovingFrame:
         self.up_master = float(up_master)
         self.down_master = down_master
         self.deg_per_unit = deg_per_unit
+        if not isinstance(limits, CartesianLimits):
+            raise ParameterError(f"frame {name!r}: limits (={limits!r}) must be a "
+                                 "CartesianLimits (see frame_limits)")
         self.limits = limits
         if not (isinstance(trigger_delay_s, (int, float)) and math.isfinite(trigger_delay_s)
                 and trigger_delay_s >= 0.0):
@@ -168,7 +179,7 @@ class MovingFrame:
     @classmethod
     def group(cls, name: str, master: "RobotGroup", *, transform: Location | None = None,
               axis: Sequence[float] = (0.0, 0.0, 1.0), window: Window | None = None,
-              limits: FrameLimits = FrameLimits(), world: Kinematics | None = None
+              limits: CartesianLimits = FRAME_LIMITS, world: Kinematics | None = None
               ) -> "MovingFrame":
         """A group frame (type 3): the TCP of robot group ``master`` as the master source,
         in this frame's world (``transform : TCP``; the transformation between the tracked and
@@ -342,11 +353,10 @@ class MovingFrame:
     # -- monitoring -------------------------------------------------------------------------
     def check_limits(self, point: FramePoint) -> TrackError:
         """MASTER_VELOCITY / MASTER_ACCELERATION if ``point`` exceeds the frame's maxima."""
-        L = self.limits
-        if v_norm(point.vel) > L.VelocityMaxTrans or abs(point.ang_vel) > L.VelocityMaxRot:
+        trans, rot = self.limits.trans, self.limits.rot
+        if v_norm(point.vel) > trans.vel or abs(point.ang_vel) > rot.vel:
             return TrackError.MASTER_VELOCITY
-        if v_norm(point.acc) > L.AccelerationMaxTrans or \
-                abs(point.ang_acc) > L.AccelerationMaxRot:
+        if v_norm(point.acc) > trans.acc or abs(point.ang_acc) > rot.acc:
             return TrackError.MASTER_ACCELERATION
         return TrackError.NONE
 

@@ -36,6 +36,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from ..errors import ParameterError
+from ..limits import CartesianLimits, Limits
 from .location import (Location, Q_IDENTITY, Vec3, pos3, q_mul, q_power, q_to_axis_angle,
                        v_norm, vec3)
 
@@ -43,22 +44,9 @@ from .location import (Location, Q_IDENTITY, Vec3, pos3, q_mul, q_power, q_to_ax
 KEEP: Any = object()
 
 
-@dataclass(frozen=True, slots=True)
-class MotionLimits:
-    """Cartesian limits of the virtual robot's motions (translation mm, rotation deg)."""
-
-    vel: float = 500.0
-    acc: float = 5000.0
-    jerk: float = 100000.0
-    rot_vel: float = 180.0
-    rot_acc: float = 1800.0
-    rot_jerk: float = 36000.0
-
-    def __post_init__(self) -> None:
-        for name in ("vel", "acc", "jerk", "rot_vel", "rot_acc", "rot_jerk"):
-            v = getattr(self, name)
-            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
-                raise ParameterError(f"motion limit {name} (={v!r}) must be a finite number > 0")
+#: the virtual robot's default motion limits: 500 mm/s, 5000 mm/s^2, 100000 mm/s^3;
+#: 180 deg/s, 1800 deg/s^2, 36000 deg/s^3
+MOTION_LIMITS = CartesianLimits(Limits(500.0, 5000.0, 100000.0), Limits(180.0, 1800.0, 36000.0))
 
 
 class SCurve:
@@ -130,7 +118,7 @@ class Motion:
 
     target: Location
     relative: bool = False
-    limits: MotionLimits | None = None
+    limits: CartesianLimits | None = None
     superpose: bool = False
     master_frame: Any = KEEP
     name: str = ""
@@ -164,7 +152,7 @@ class VirtualRobot:
     """The virtual robot of one robot group (world TCP).  See the module docstring."""
 
     def __init__(self, start: Location, sample_time_s: float,
-                 limits: MotionLimits = MotionLimits()) -> None:
+                 limits: CartesianLimits = MOTION_LIMITS) -> None:
         self.T = float(sample_time_s)
         self.limits = limits
         self.base = start
@@ -240,8 +228,8 @@ class VirtualRobot:
         lim = motion.limits or self.limits
         dist = v_norm(delta.pos)
         _, ang = q_to_axis_angle(delta.ori)
-        ct = SCurve(dist, lim.vel, lim.acc, lim.jerk)
-        cr = SCurve(ang, lim.rot_vel, lim.rot_acc, lim.rot_jerk)
+        ct = SCurve(dist, lim.trans.vel, lim.trans.acc, lim.trans.jerk)
+        cr = SCurve(ang, lim.rot.vel, lim.rot.acc, lim.rot.jerk)
         if cr.duration > ct.duration:
             # the rotation dominates: run it and scale the translation with the same s
             profile, length = cr, ang
@@ -318,4 +306,4 @@ def displacement(pos: Vec3 = (0.0, 0.0, 0.0), ori=Q_IDENTITY) -> Location:
     return Location(pos3(pos), ori)
 
 
-__all__ = ["KEEP", "Motion", "MotionLimits", "SCurve", "VirtualRobot", "displacement"]
+__all__ = ["KEEP", "MOTION_LIMITS", "Motion", "SCurve", "VirtualRobot", "displacement"]

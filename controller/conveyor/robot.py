@@ -98,6 +98,7 @@ from enum import IntEnum
 from typing import Any, Iterable, Mapping, Sequence, overload
 
 from ..errors import CantrackError, ParameterError, StateError
+from ..limits import CartesianLimits, Limits
 from ..tracking import Imfs, Mode, MotionState, TrackError, TrackerParams, TrackState
 from .errors import (ITEM_MISSED_CODE, FrameBusyError, NoFrameError, TooManyFramesError)
 from .frame import MovingFrame
@@ -105,7 +106,7 @@ from .kinematics import Kinematics, check_compatible
 from .frames import FramePoint, GroupGeometry, RotaryGeometry
 from .location import (Q_IDENTITY, Location, Quat, Vec3, as_location, q_axis_angle, q_conj,
                        q_mul, q_to_axis_angle, q_twist_angle, vec3)
-from .motion import KEEP, Motion, MotionLimits, VirtualRobot
+from .motion import KEEP, MOTION_LIMITS, Motion, VirtualRobot
 from .telemetry import ItemRecord, ItemStatus
 from .tracker import ConveyorTracker
 from .triggers import TriggerBuffer, TriggerEntry
@@ -553,7 +554,7 @@ class RobotGroup:
     def __init__(self, name: str, tracker: TrackerParams | None = None, *,
                  start: Location | Sequence[float] = Location(),
                  base: Location = Location(), tool: Location = Location(),
-                 motion_limits: MotionLimits = MotionLimits(), buffer_capacity: int = 32,
+                 motion_limits: CartesianLimits = MOTION_LIMITS, buffer_capacity: int = 32,
                  default_mode: Mode | int = Mode.RELATIVE,
                  kinematics: Kinematics = Kinematics()) -> None:
         self.name = str(name)
@@ -925,14 +926,14 @@ class RobotGroup:
         return fr.zero(item)
 
     # -- motions ----------------------------------------------------------------------------
-    def moves(self, target: Location | Sequence[float], *, limits: MotionLimits | None = None,
+    def moves(self, target: Location | Sequence[float], *, limits: CartesianLimits | None = None,
               superpose: bool = False, master_frame: Any = KEEP, name: str = "") -> Motion:
         """``MOVES <robot> target`` (world TCP, absolute).  ``master_frame``: nodal
         MasterFrame (a frame or None), acting when the motion starts (9.6)."""
         return self.virtual.enter(Motion(as_location(target), False, limits, superpose,
                                          master_frame, name))
 
-    def moves_rel(self, delta: Location | Sequence[float], *, limits: MotionLimits | None = None,
+    def moves_rel(self, delta: Location | Sequence[float], *, limits: CartesianLimits | None = None,
                   superpose: bool = False, master_frame: Any = KEEP, name: str = "") -> Motion:
         """A relative ``MOVES``: the displacement is superposed on the robot's motion."""
         return self.virtual.enter(Motion(as_location(delta), True, limits, superpose,
@@ -961,25 +962,25 @@ class RobotGroup:
         if not moving or (rt is None and rr is None):
             return
         lim = m.limits or self.virtual.limits
-        caps = {}
-        for name, robot, frame_key in (
-                ("vel", rt and rt.vel, "VelocityMaxTrans"),
-                ("acc", rt and rt.acc, "AccelerationMaxTrans"),
-                ("jerk", rt and rt.jerk, "JerkMaxTrans"),
-                ("rot_vel", rr and rr.vel, "VelocityMaxRot"),
-                ("rot_acc", rr and rr.acc, "AccelerationMaxRot"),
-                ("rot_jerk", rr and rr.jerk, "JerkMaxRot")):
+        capped = []
+        for channel, robot, own, suffix in (("trans", rt, lim.trans, "Trans"),
+                                            ("rot", rr, lim.rot, "Rot")):
             if robot is None:
+                capped.append(own)
                 continue
-            left = robot - sum(getattr(f, frame_key) for f in moving)
-            if left <= 0.0:
-                raise ParameterError(
-                    f"{self.name}: motion {m.name or m.id} cannot start: the moving frames' "
-                    f"{frame_key} ({sum(getattr(f, frame_key) for f in moving):g}) leaves "
-                    f"nothing of the robot's maximum ({robot:g}) for a superimposed motion")
-            caps[name] = min(getattr(lim, name), left)
-        m.limits = MotionLimits(**{**{n: getattr(lim, n) for n in (
-            "vel", "acc", "jerk", "rot_vel", "rot_acc", "rot_jerk")}, **caps})
+            bounds = []
+            for bound, softmc in (("vel", "VelocityMax"), ("acc", "AccelerationMax"),
+                                  ("jerk", "JerkMax")):
+                used = sum(getattr(getattr(f, channel), bound) for f in moving)
+                left = getattr(robot, bound) - used
+                if left <= 0.0:
+                    raise ParameterError(
+                        f"{self.name}: motion {m.name or m.id} cannot start: the moving "
+                        f"frames' {softmc}{suffix} ({used:g}) leaves nothing of the robot's "
+                        f"maximum ({getattr(robot, bound):g}) for a superimposed motion")
+                bounds.append(min(getattr(own, bound), left))
+            capped.append(Limits(*bounds))
+        m.limits = CartesianLimits(*capped)
 
     # -- cyclic -----------------------------------------------------------------------------
     def update(self) -> RobotOutput:

@@ -24,7 +24,7 @@ units" (what the conveyor's axis counts: mm of belt, deg of table, ...).  ``*`` 
         up_master: 0                 # rotary: master value at UpStream[1]
         down_master: 180             # rotary: master value at DownStream[1]
         window*: {upstream: 100, downstream: 900}   # relative to the trigger: mm / deg
-        limits: {VelocityMaxTrans: 1000, AccelerationMaxTrans: 1000, ...}   # page names
+        limits: {VelocityMaxTrans: 1000, AccelerationMaxTrans: 1000, ...}   # softMC's names
       master*:                       # the conveyor's master axis [master units]
         start: 0                     # value at t = 0
         speed: 300                   # constant speed [unit/s] ... or
@@ -73,15 +73,16 @@ from typing import Any
 
 import numpy as np
 
-from ..conveyor import (CatchPrediction, ConveyorCell, EncoderSource, Event, FrameLimits,
-                        Location, MotionLimits, MovingFrame, RobotGroup, SimulatedAxis,
-                        TriggerBufferFull, Window)
+from ..conveyor import (FRAME_LIMITS, MOTION_LIMITS, SOFTMC_LIMIT_NAMES, CatchPrediction,
+                        ConveyorCell, EncoderSource, Event, Location, MovingFrame, RobotGroup,
+                        SimulatedAxis, TriggerBufferFull, Window, frame_limits)
 from ..conveyor.frame import LINEAR, ROTARY, ROTARY_DECOUPLED, TYPE_NAMES
 from ..conveyor.replay import (TriggerEvent, check_trigger_log, read_encoder_log,
                                read_trigger_log, write_encoder_log, write_trigger_log)
 from ..conveyor.sources import quantise_counts
 from ..conveyor.telemetry import ItemRecord
 from ..errors import ConfigError, ParameterError
+from ..limits import CartesianLimits, Limits
 from ..tracking import Imfs, Mode, TrackerParams
 from ..yamlmarks import Section, check_number
 from .reading import MAX_SAMPLES, SampledRun, segment_master, tracker_params, unit_vector
@@ -99,7 +100,7 @@ class FrameSpec:
     name: str
     type: int
     window: Window
-    limits: FrameLimits
+    limits: CartesianLimits
     origin: Location = Location()
     direction: tuple[float, float, float] = (1.0, 0.0, 0.0)
     scale_mm_per_unit: float = 1.0
@@ -147,7 +148,7 @@ class RobotSpec:
     tool: Location = Location()
     slave: int = 5
     buffer_capacity: int = 32
-    motion: MotionLimits = MotionLimits()
+    motion: CartesianLimits = MOTION_LIMITS
     #: the item types the robot tracks on the frame (None: every type)
     track_types: frozenset[int] | None = None
 
@@ -213,13 +214,13 @@ def _frame(node) -> FrameSpec:
         raise w.error("downstream", f"value {down!r} is out of range: must be > upstream "
                                     f"({up!r}) {unit}")
     window = Window.single(up, down)
-    limits = FrameLimits()
+    limits = FRAME_LIMITS
     ln = node.optional_section("limits")
     if ln is not None:
-        names = list(FrameLimits.__dataclass_fields__)
-        ln.check_keys(names)
-        values = {f: ln.number(f, getattr(limits, f), lo=0.0, lo_open=True) for f in names}
-        limits = FrameLimits(**values)
+        ln.check_keys(list(SOFTMC_LIMIT_NAMES))
+        limits = frame_limits(**{
+            f: ln.number(f, getattr(getattr(limits, channel), bound), lo=0.0, lo_open=True)
+            for f, (channel, bound) in SOFTMC_LIMIT_NAMES.items()})
     if ftype == LINEAR:
         for k in ("upstream", "arc_point", "downstream", "up_master", "down_master"):
             if node.has(k):
@@ -404,13 +405,13 @@ def _robot(node) -> RobotSpec:
     slave = node.number("slave", 5, integer=True)
     if slave not in (3, 5):
         raise node.error("slave", f"value {slave!r} is out of range: must be 3 or 5")
-    ml = MotionLimits()
+    ml = MOTION_LIMITS
     mn = node.optional_section("motion")
     if mn is not None:
-        names = ("vel", "acc", "jerk", "rot_vel", "rot_acc", "rot_jerk")
-        mn.check_keys(names)
-        ml = MotionLimits(**{k: mn.number(k, getattr(ml, k), lo=0.0, lo_open=True)
-                             for k in names})
+        mn.check_keys(("vel", "acc", "jerk", "rot_vel", "rot_acc", "rot_jerk"))
+        ml = CartesianLimits(*(Limits(*(mn.number(prefix + k, getattr(lim, k), lo=0.0,
+                                                  lo_open=True) for k in ("vel", "acc", "jerk")))
+                               for prefix, lim in (("", ml.trans), ("rot_", ml.rot))))
     types = None
     if node.has("track_types"):
         types = frozenset(check_number(v, lambda m, line=line, path=path:

@@ -121,7 +121,7 @@ _LIMIT_KEYS = ("robot_max_trans", "robot_max_rot", "sync_trans", "desync_trans",
                "desync_rot", "master_max_trans", "master_max_rot")
 _SOFTMC_KEYS = ("literal",) + tuple(f.name for f in dataclasses.fields(SoftMcOptions))
 _MODES = {"absolute": Mode.ABSOLUTE, "relative": Mode.RELATIVE}
-_PARAM_MSG = re.compile(r"^(?:limit |rate )?(\w+) \(=")
+_PARAM_MSG = re.compile(r"^(?:Limits\.|rate )?(\w+) \(=")
 
 
 def _param_error(node: Section, exc: ParameterError, fields: Iterable[str]) -> ConfigError:

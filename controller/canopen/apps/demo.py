@@ -49,7 +49,6 @@ from typing import TYPE_CHECKING
 from ...conveyor import (
     ITEM_MISSED_CODE,
     Location,
-    MotionLimits,
     MovingFrame,
     RobotGroup,
     Window,
@@ -57,7 +56,8 @@ from ...conveyor import (
 )
 from ...conveyor.location import q_to_axis_angle, vec3
 from ...conveyor.sources import SourceState
-from ...tracking import Imfs, Limits, MasterEstimate, Mode, MotionState, Tracker, TrackState
+from ...limits import CartesianLimits, Limits
+from ...tracking import Imfs, MasterEstimate, Mode, MotionState, Tracker, TrackState
 from ...errors import StateError
 from ..config.demo import DemoConfig
 from ..master.app import AppStatus
@@ -267,11 +267,11 @@ class PickPlace:
         tp = ctl.cfg.tracking.tracker
         sp = ctl.tracker.setpoint
         self._T = ctl.cfg.period_s
+        # TrackerParams fills the sync limits in (from the robot's maxima or the defaults)
+        assert tp.sync_trans is not None and tp.sync_rot is not None
         self.robot = RobotGroup("robot", replace(tp, sample_time_s=ctl.cfg.period_s),
                                 start=Location.from_axis_angle(sp.pos, (0.0, 0.0, 1.0), sp.ang),
-                                motion_limits=MotionLimits(
-                                    tp.sync_trans.vel, tp.sync_trans.acc, tp.sync_trans.jerk,
-                                    tp.sync_rot.vel, tp.sync_rot.acc, tp.sync_rot.jerk))
+                                motion_limits=CartesianLimits(tp.sync_trans, tp.sync_rot))
         types = self._types if self._types_set else ctl.cfg.tracking.track_types
         if types is not None:
             self.robot.track_types(self.frame, types)
