@@ -50,7 +50,7 @@ import numpy as np
 from controller.canopen.apps.demo import PhotoEye, PickPlace
 from controller.canopen.apps.report import timing_summary
 
-from controller.canopen.config import load_bus_config
+from controller.canopen.config import load_config
 from controller.canopen.io.transport import RealtimeTransport, virtual_bus
 from controller.canopen.master.cycle import Controller
 from controller.canopen.slave.world import SimWorld
@@ -94,7 +94,7 @@ def _workload(period_us: int, seconds: float, tmp: Path):
     text = DEMO.read_text().replace("../../eds/", str(ROOT / "eds") + "/").replace(
         "  sync_period: 2000 ", f"  sync_period: {period_us} ").replace(
         "    silent_cycles: 5", "    silent_cycles: 25")
-    cfg = load_bus_config(bus_yml(tmp, text=text, name=f"bench-{period_us}.yml"))
+    cfg = load_config(bus_yml(tmp, text=text, name=f"bench-{period_us}.yml"))
     # items every 2 s (pitch 600-700 mm at 300 mm/s): the gantry keeps up with them
     demo = replace(cfg.demo, items=100_000, duration_s=seconds, pitch_mm=(600.0, 700.0))
     return cfg, demo

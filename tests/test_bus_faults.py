@@ -12,7 +12,7 @@ import random
 import can
 import pytest
 
-from controller.canopen.config import load_bus_config
+from controller.canopen.config import load_config
 from controller.canopen.master.app import ConveyorFollow
 from controller.canopen.protocol.cia402 import State
 from controller.canopen.testing import bus_yml, load, stepped
@@ -200,7 +200,7 @@ def _pdo_text(extra: str, kind: str = "rpdo") -> str:
 def test_event_deadline_is_applied(tmp_path):
     """RPDO event_deadline -> 1400h:05 (the drive's deadline monitoring) in the boot."""
     from controller.canopen.config.concise import concise_configuration
-    cfg = load_bus_config(bus_yml(tmp_path, text=_pdo_text("      event_deadline: 20\n")))
+    cfg = load_config(bus_yml(tmp_path, text=_pdo_text("      event_deadline: 20\n")))
     writes = [(w.index, w.sub_index, w.value) for w in concise_configuration(cfg)["x"].sdos]
     assert (0x1400, 5, 20) in writes
     assert writes.index((0x1400, 5, 20)) < writes.index((0x1400, 1, 0x20B))  # before enable
@@ -210,7 +210,7 @@ def test_event_deadline_on_a_tpdo_is_refused(tmp_path):
     from controller.errors import ConfigError
     with pytest.raises(ConfigError, match=r"bus.yml:\d+, key 'encoder.tpdo.1.event_deadline':"
                                           r" is an RPDO setting"):
-        load_bus_config(bus_yml(tmp_path, text=_pdo_text("      event_deadline: 20\n",
+        load_config(bus_yml(tmp_path, text=_pdo_text("      event_deadline: 20\n",
                                                          "tpdo")))
 
 
@@ -227,13 +227,13 @@ def test_restricted_or_foreign_cob_id_is_refused(tmp_path, cob, why):
     from controller.errors import ConfigError
     with pytest.raises(ConfigError, match=rf"bus.yml:\d+, key 'x.rpdo.1.cob_id': COB-ID "
                                           rf"0x{cob:03X} of x RPDO 1 .*{why}"):
-        load_bus_config(bus_yml(tmp_path, text=_pdo_text(f"      cob_id: 0x{cob:03X}\n")))
+        load_config(bus_yml(tmp_path, text=_pdo_text(f"      cob_id: 0x{cob:03X}\n")))
 
 
 @pytest.mark.parametrize("cob", [0x20B, 0x2F0, 0x680, 0x1F0, 0x18F])
 def test_own_or_free_cob_ids_are_accepted(tmp_path, cob):
     """The node's own predefined IDs and IDs of node-IDs nobody on the bus has."""
-    cfg = load_bus_config(bus_yml(tmp_path, text=_pdo_text(f"      cob_id: 0x{cob:03X}\n")))
+    cfg = load_config(bus_yml(tmp_path, text=_pdo_text(f"      cob_id: 0x{cob:03X}\n")))
     assert cfg.slaves["x"].rpdo[1].cob_id == cob
 
 
@@ -343,12 +343,12 @@ def test_exception_in_a_receive_callback_is_caught_and_stops(make):
 _RUN_WITH_BUG = """
 import sys
 from controller.canopen.io.clock import RealtimeClock
-from controller.canopen.config import load_bus_config
+from controller.canopen.config import load_config
 from controller.canopen.master import app
 from controller.canopen.slave.rack import DeviceRack
 from controller.canopen.io.transport import DeviceThread, virtual_bus
 from controller.cli import run as cmd_run
-cfg = load_bus_config(sys.argv[1])
+cfg = load_config(sys.argv[1])
 clock = RealtimeClock()
 rack = DeviceRack.from_config(cfg, virtual_bus("bug"), clock)
 th = DeviceThread(rack, clock).start()

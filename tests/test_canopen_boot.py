@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import pytest
 
-from controller.canopen.config import load_bus_config
+from controller.canopen.config import load_config
 from controller.canopen.config.concise import concise_configuration
 from controller.canopen.master.boot import BootError, cantrack_sdos, interpolation_period
 from controller.canopen.protocol.sdo import SdoTimeoutError
@@ -65,7 +65,7 @@ def test_missing_optional_node_is_left_out(stepped_controller, tmp_path):
     text = bus_yml_text(("x", "y", "z"))
     text = "\n".join(line for line in text.splitlines()
                      if not line.startswith("      z: {node: z"))
-    cfg = load_bus_config(bus_yml(tmp_path, text=text))
+    cfg = load_config(bus_yml(tmp_path, text=text))
     world, ctl = stepped_controller(cfg, present=["encoder", "x", "y"])
     result = ctl.boot()
     assert result.missing == ["z"]
@@ -88,7 +88,7 @@ def test_wrong_identity(stepped_controller, cfg, field, sub, value, text):
 
 def test_serial_number_from_bus_yml(stepped_controller, tmp_path):
     text = bus_yml_text().replace("  node_id: 12\n", "  node_id: 12\n  serial_number: 77\n")
-    cfg = load_bus_config(bus_yml(tmp_path, text=text))
+    cfg = load_config(bus_yml(tmp_path, text=text))
     world, ctl = stepped_controller(cfg)
     with pytest.raises(BootError, match=r"node 12 \(y\): wrong identity: serial number "
                                         r"1018h:04 is 00000000h, bus.yml says 0000004Dh"):

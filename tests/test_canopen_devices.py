@@ -365,7 +365,7 @@ def test_touch_probe_wired_to_home_switch_latches_the_exact_edge(tmp_path, switc
 
 
 def test_probe_input_home_in_the_simulation_section(tmp_path):
-    from controller.canopen.config import load_bus_config
+    from controller.canopen.config import load_config
     from controller.canopen.testing import bus_yml_text
     from controller.errors import ConfigError
     text = bus_yml_text(("x",))
@@ -373,10 +373,10 @@ def test_probe_input_home_in_the_simulation_section(tmp_path):
     p = tmp_path / "bus.yml"
     p.write_text(text.replace("  x: {initial_counts: ",
                               "  x: {home_switch: [0, 10], probe_input: home, initial_counts: "))
-    assert load_bus_config(p).simulation.devices["x"].probe_input == "home"
+    assert load_config(p).simulation.devices["x"].probe_input == "home"
     p.write_text(text.replace("  x: {initial_counts: ", "  x: {probe_input: home, initial_counts: "))
     with pytest.raises(ConfigError, match="probe_input.*home_switch"):
-        load_bus_config(p)
+        load_config(p)
     p.write_text(text.replace("  x: {initial_counts: ", "  x: {probe_input: homr, initial_counts: "))
     with pytest.raises(ConfigError, match=r"bus.yml:\d+.*probe_input.*did you mean"):
-        load_bus_config(p)
+        load_config(p)

@@ -16,7 +16,7 @@ import pytest
 from controller.canopen.apps import axis_motion as am
 
 from controller import cli
-from controller.canopen.config import load_bus_config
+from controller.canopen.config import load_config
 from controller.canopen.testing import bus_yml_text
 from controller.errors import ConfigError
 
@@ -56,7 +56,7 @@ def yml_text(*, initial: int = 300000, sim: str = SWITCHES, homing: str = GOTOY,
 def cfg_of(tmp_path: Path, **kw):
     p = tmp_path / "bus.yml"
     p.write_text(yml_text(**kw))
-    return load_bus_config(p)
+    return load_config(p)
 
 
 def check_stream(r: am.MotionReport, vel: float = V, acc: float = A) -> None:
@@ -218,13 +218,13 @@ def test_homing_config_errors(tmp_path):
     p = tmp_path / "bus.yml"
     p.write_text(yml_text(homing="{method: magic}"))
     with pytest.raises(ConfigError, match="method"):
-        load_bus_config(p)
+        load_config(p)
     p.write_text(yml_text(homing="{method: drive, drive_method: 16}"))
     with pytest.raises(ConfigError, match="reserved"):
-        load_bus_config(p)
+        load_config(p)
     p.write_text(yml_text(homing="{method: gotoy, search_vel: 500}"))
     with pytest.raises(ConfigError, match="search_vel"):
-        load_bus_config(p)
+        load_config(p)
 
 
 # -- moves -------------------------------------------------------------------------------------
@@ -526,14 +526,14 @@ def test_cli_max_time_must_be_positive(tmp_path, capsys, value):
     assert err == f"cantrack: error: --max-time {float(value):g}: must be a finite number " \
                   "of seconds > 0"
     with pytest.raises(am.MotionError, match="finite number of seconds > 0"):
-        am.move(load_bus_config(p), "y", 35.0, max_time_s=float(value))
+        am.move(load_config(p), "y", 35.0, max_time_s=float(value))
 
 
 # -- homing needs a homing: section (audit gap 2) ----------------------------------------------
 def test_home_axis_without_homing_section(tmp_path, capsys):
     p = tmp_path / "bus.yml"
     p.write_text(yml_text())  # x has no homing: section
-    cfg = load_bus_config(p)
+    cfg = load_config(p)
     node = cfg.slaves["x"].node_id
     msg = f"axis x (node {node}) has no homing: section in {p}"
     with pytest.raises(am.MotionError) as exc:
@@ -550,7 +550,7 @@ def test_home_axis_without_homing_section(tmp_path, capsys):
 def test_home_all_skips_axes_without_homing(tmp_path, capsys):
     p = tmp_path / "bus.yml"
     p.write_text(yml_text())
-    reports = am.home(load_bus_config(p))
+    reports = am.home(load_config(p))
     assert [(r.axis, r.ok, r.result) for r in reports] == [("y", True, "FINISHED"),
                                                           ("x", True, "SKIPPED")]
     assert reports[1].targets == [] and "no homing: section" in reports[1].message
@@ -559,7 +559,7 @@ def test_home_all_skips_axes_without_homing(tmp_path, capsys):
     assert f"home x: SKIPPED: not homed: no homing: section in {p}" in out
     p.write_text(yml_text().replace(f", homing: {GOTOY}", ""))
     with pytest.raises(am.MotionError, match="no axis has a homing: section"):
-        am.home(load_bus_config(p))
+        am.home(load_config(p))
 
 
 # -- the progress display (audit gap 3) --------------------------------------------------------
@@ -628,7 +628,7 @@ def _home_y(tmp_path, *, touch_probe: bool, initial: int = 300000, offset: float
         text = text.replace(TPDO2, TPDO2 + PROBE_TPDO)
     p = tmp_path / "bus.yml"
     p.write_text(text)
-    cfg = load_bus_config(p)
+    cfg = load_config(p)
     with SimWorld(cfg, record=record) as world:
         ctl = am.MotionController(cfg, world.transport, [am.GotoYJob(am.axis_config(cfg, "y"),
                                                                      cfg.period_s)])
@@ -744,21 +744,21 @@ def test_touch_probe_config_errors(tmp_path, monkeypatch):
     p = tmp_path / "bus.yml"
     p.write_text(yml_text(homing="{method: gotoy, touch_probe: 1}"))
     with pytest.raises(ConfigError, match=r"bus.yml:\d+.*touch_probe.*true or false"):
-        load_bus_config(p)
+        load_config(p)
     p.write_text(yml_text(homing="{method: drive, drive_method: 21, touch_probe: true}"))
     with pytest.raises(ConfigError, match=r"touch_probe.*only applies to method gotoy"):
-        load_bus_config(p)
+        load_config(p)
     p.write_text(yml_text(homing="{method: gotoy, touch_prob: true}"))
     with pytest.raises(ConfigError, match="touch_prob.*did you mean 'touch_probe'"):
-        load_bus_config(p)
+        load_config(p)
     from controller.canopen.config import tracking as tc
     monkeypatch.setattr(tc, "TOUCH_PROBE_OBJECTS",
                         tc.TOUCH_PROBE_OBJECTS + ((0x60BB, "touch probe 1 negative edge"),))
     p.write_text(yml_text(homing="{method: gotoy, touch_probe: true}"))
     with pytest.raises(ConfigError, match=r"touch_probe.*missing 60BBh"):
-        load_bus_config(p)
+        load_config(p)
     p.write_text(yml_text(homing="{method: gotoy}"))
-    assert am.axis_config(load_bus_config(p), "y").homing.touch_probe is False
+    assert am.axis_config(load_config(p), "y").homing.touch_probe is False
 
 
 def test_max_time_while_arming_the_touch_probe(tmp_path):

@@ -10,7 +10,7 @@ import json
 
 import pytest
 
-from controller.canopen.config import load_bus_config
+from controller.canopen.config import load_config
 from controller.canopen.io.clock import RealtimeClock
 from controller.canopen.io.transport import DeviceThread, virtual_bus
 from controller.canopen.master.checkbus import check_bus, parse_scan
@@ -117,7 +117,7 @@ def test_command_exit_codes(tmp_path, capsys):
     """``cantrack check-bus`` on a virtual bus with the devices in a thread: 1 before the boot
     (the encoder's mapping differs), 1 with a node missing."""
     path = bus_yml(tmp_path)
-    cfg = load_bus_config(path)
+    cfg = load_config(path)
     clock = RealtimeClock()
     rack = DeviceRack.from_config(cfg, virtual_bus("cb-cmd"), clock, ["encoder", "x"])
     th = DeviceThread(rack, clock).start()

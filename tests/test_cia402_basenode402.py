@@ -17,7 +17,7 @@ import canopen
 import pytest
 from canopen.profiles.p402 import BaseNode402
 
-from controller.canopen.config import load_bus_config
+from controller.canopen.config import load_config
 from controller.canopen.io.clock import RealtimeClock
 from controller.canopen.io.transport import DeviceThread, virtual_bus
 from controller.canopen.slave.rack import DeviceRack
@@ -29,7 +29,7 @@ X = 11
 
 @pytest.fixture
 def drive(tmp_path):
-    cfg = load_bus_config(bus_yml(tmp_path, axes=("x",), period_us=int(SYNC_S * 1e6)))
+    cfg = load_config(bus_yml(tmp_path, axes=("x",), period_us=int(SYNC_S * 1e6)))
     channel = f"bn402-{tmp_path.name}"
     net = canopen.Network()
     net.connect(interface="virtual", channel=channel)

@@ -327,7 +327,7 @@ def test_fmu_encoder_two_samples_per_step_and_state(fmu2_path):
 # -------------------------------------------------------------- the CAN shell
 def _can_config(tmp_path, profile: str, planner: str = "optimal"):
     from controller.canopen.testing import bus_yml_text
-    from controller.canopen.config import load_bus_config
+    from controller.canopen.config import load_config
     text = bus_yml_text()
     text = text.replace("    estimator: {window: 16, degree: 2}\n",
                         "    conditioning: {jerk_max: 5000}\n")
@@ -337,7 +337,7 @@ def _can_config(tmp_path, profile: str, planner: str = "optimal"):
     assert "conditioning" in text and planner in text
     p = tmp_path / "bus.yml"
     p.write_text(text)
-    return load_bus_config(p)
+    return load_config(p)
 
 
 def test_can_shell_with_conditioning_equals_the_offline_core(tmp_path):

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import pytest
 
-from controller.canopen.config import load_bus_config
+from controller.canopen.config import load_config
 from controller.canopen.config.concise import concise_configuration
 from controller.canopen.testing import bus_yml, bus_yml_text
 from controller.errors import ConfigError
@@ -27,7 +27,7 @@ needs_dcfgen = pytest.mark.skipif(DCFGEN is None, reason="dcfgen (dcf-tools) not
 
 
 def test_demo_config_loads():
-    cfg = load_bus_config(DEMO)
+    cfg = load_config(DEMO)
     assert list(cfg.slaves) == ["encoder", "x", "y", "z", "c"]
     assert cfg.master.sync_period_us == 2000 and cfg.master.sync_overflow == 16
     assert [a.name for a in cfg.tracking.axes] == ["x", "y", "z", "c"]
@@ -36,6 +36,36 @@ def test_demo_config_loads():
     assert cfg.slaves["y"].node_id == 12  # the YAML merge key (<<: *drive) is honoured
     assert cfg.demo.items == 5
     assert cfg.simulation.devices["x"].initial_counts == 5_500_000
+
+
+def test_the_loaded_config_is_immutable():
+    """load_config returns a ControllerConfig nothing can change: frozen dataclasses all the
+    way down, read-only mappings (a changed copy is made with dataclasses.replace)."""
+    import dataclasses
+
+    from controller.canopen.config import ControllerConfig
+    cfg = load_config(DEMO)
+    assert isinstance(cfg, ControllerConfig)
+    for obj, name in ((cfg, "tracking"), (cfg.master, "node_id"), (cfg.slaves["x"], "node_id"),
+                      (cfg.tracking, "axes"), (cfg.tracking.axes[0].motion, "limits"),
+                      (cfg.tracking.axes[0].motion.limits, "vel"), (cfg.simulation, "devices"),
+                      (cfg.demo, "items")):
+        with pytest.raises(dataclasses.FrozenInstanceError):
+            setattr(obj, name, None)
+    for mapping, key in ((cfg.slaves, "x"), (cfg.ods, "x"), (cfg.slaves["x"].rpdo, 1),
+                         (cfg.slaves["x"].tpdo, 1), (cfg.slaves["x"].other, "k"),
+                         (cfg.simulation.devices, "x"), (cfg.tracking.reactions.table, "k")):
+        with pytest.raises(TypeError):
+            mapping[key] = None  # type: ignore[index]
+    changed = dataclasses.replace(cfg, demo=None)
+    assert changed.demo is None and cfg.demo is not None and changed.slaves is cfg.slaves
+
+
+def test_no_config_module_sets_attributes_behind_frozen():
+    """No ``object.__setattr__`` in the configuration layer (issue 10: the config was frozen
+    but mutated that way)."""
+    for path in (ROOT / "controller" / "canopen" / "config").glob("*.py"):
+        assert "object.__setattr__" not in path.read_text(encoding="utf-8"), path
 
 
 def _dcfgen(yml: Path, out: Path) -> subprocess.CompletedProcess:
@@ -74,7 +104,7 @@ def test_dcfgen_accepts_and_our_sdo_list_matches(tmp_path, which):
     assert "Traceback" not in r.stderr
     files = sorted(p.name for p in (tmp_path / "out").iterdir())
     assert "master.dcf" in files
-    cfg = load_bus_config(yml)
+    cfg = load_config(yml)
     ours = {name: [(w.index, w.sub_index, w.data()) for w in c.sdos]
             for name, c in concise_configuration(cfg).items()}
     theirs = _parse_dcfgen(r.stdout)
@@ -88,7 +118,7 @@ def test_dcfgen_fails_on_a_plain_tracking_key(tmp_path):
     yml = bus_yml(tmp_path, text=text)
     assert _dcfgen(yml, tmp_path / "out").returncode != 0
     with pytest.raises(ConfigError, match="dcf"):
-        load_bus_config(yml)
+        load_config(yml)
 
 
 # -- bad files -----------------------------------------------------------------------------
@@ -229,7 +259,7 @@ def test_bad_bus_yml(tmp_path, name):
     text = GOOD.replace(old, new, count)
     path = bus_yml(tmp_path, text=text)
     with pytest.raises(ConfigError) as info:
-        load_bus_config(path)
+        load_config(path)
     err = info.value
     assert err.file == str(path)
     assert re.search(message, str(err)), str(err)
@@ -244,7 +274,7 @@ def test_bad_bus_yml(tmp_path, name):
 def test_error_message_names_file_line_and_key(tmp_path):
     path = bus_yml(tmp_path, text=GOOD.replace("  sync_overflow: 16", "  sync_overlow: 16"))
     with pytest.raises(ConfigError) as info:
-        load_bus_config(path)
+        load_config(path)
     assert str(info.value) == (f"{path}:{_line_of('sync_overflow')}, key 'master.sync_overlow':"
                                " unknown key (did you mean 'sync_overflow'?)")
 
@@ -255,5 +285,5 @@ def test_a_file_that_is_not_utf8_names_file_and_line(tmp_path):
     path = tmp_path / "latin1.yml"
     path.write_bytes(text)
     with pytest.raises(ConfigError, match=r"not UTF-8 text \(byte 0xb5\)") as info:
-        load_bus_config(path)
+        load_config(path)
     assert (info.value.file, info.value.line) == (str(path), _line_of("sync_overflow"))

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from controller.canopen.config import load_bus_config
+from controller.canopen.config import load_config
 from controller.canopen.config.busload import (
     MAX_LOAD,
     WARN_LOAD,
@@ -29,7 +29,7 @@ def test_frame_bits_worst_case_stuffing():
 
 
 def test_demo_bus_load():
-    load = bus_load(load_bus_config(DEMO))
+    load = bus_load(load_config(DEMO))
     # SYNC(1 byte) 65 + encoder 95 + 4 x (RPDO 115 + TPDO 115) = 1080 bit per cycle, plus
     # 6 heartbeats every 50 ms (65 bit x 2/50) and 4 TPDO3 every 100 ms (125 bit x 2/100)
     expected = 65 + 95 + 4 * 230 + 6 * 65 * 2 / 50 + 4 * 125 * 2 / 100
@@ -40,7 +40,7 @@ def test_demo_bus_load():
 
 
 def test_warns_above_60_percent(tmp_path, caplog):
-    cfg = load_bus_config(bus_yml(tmp_path, axes=("x", "y", "z", "c"), period_us=1500))
+    cfg = load_config(bus_yml(tmp_path, axes=("x", "y", "z", "c"), period_us=1500))
     with caplog.at_level(logging.WARNING):
         load = check_bus_load(cfg)
     assert WARN_LOAD < load.load <= MAX_LOAD
@@ -49,7 +49,7 @@ def test_warns_above_60_percent(tmp_path, caplog):
 
 @pytest.mark.parametrize("period_us, baudrate", [(1100, 1000), (2000, 500)])
 def test_refuses_above_90_percent(tmp_path, period_us, baudrate):
-    cfg = load_bus_config(bus_yml(tmp_path, axes=("x", "y", "z", "c"), period_us=period_us,
+    cfg = load_config(bus_yml(tmp_path, axes=("x", "y", "z", "c"), period_us=period_us,
                                   baudrate=baudrate))
     assert bus_load(cfg).load > MAX_LOAD
     with pytest.raises(ConfigError, match=r"bus load (9\d|1\d\d)\.\d % .* is above 90 %") as info:

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import can
 
-from controller.canopen.config import load_bus_config
+from controller.canopen.config import load_config
 from controller.canopen.io.transport import RealtimeTransport, virtual_bus
 from controller.canopen.master.app import ConveyorFollow
 from controller.canopen.master.cycle import Controller
@@ -149,7 +149,7 @@ def test_controller_against_sim_devices_in_real_time(tmp_path):
     # the simulated devices have opened their bus and booted
     wait_file(ready, [], 30, running=lambda: not done.is_set())
     assert not errors, errors
-    cfg = load_bus_config(yml)
+    cfg = load_config(yml)
     transport = RealtimeTransport(virtual_bus(channel))
     ctl = Controller(cfg, transport, ConveyorFollow(5, None, (420.0, 30.0, 0.0),
                                                     end_cycle=60))

@@ -13,7 +13,7 @@ from dataclasses import replace
 
 from controller.canopen.apps.demo import PhotoEye, PickPlace, Step
 
-from controller.canopen.config import load_bus_config
+from controller.canopen.config import load_config
 from controller.canopen.master.cycle import Controller, Phase
 from controller.canopen.slave.world import SimWorld
 from controller.cli import demo as cmd_demo
@@ -21,7 +21,7 @@ from controller.conveyor import ITEM_MISSED_CODE, LINEAR, ItemStatus, MovingFram
 
 
 def _run(demo, extra_trigger=False, max_cycles=8000, watch=None):
-    cfg = load_bus_config(cmd_demo.DEFAULT_CONFIG)
+    cfg = load_config(cmd_demo.DEFAULT_CONFIG)
     demo = replace(cfg.demo, **demo)
     app = PickPlace(demo)
     with SimWorld(cfg) as world:
@@ -127,9 +127,9 @@ def test_item_types_from_bus_yml_the_robot_picks_only_its_types(tmp_path):
     assert "\n  items: 5\n" in src
     text = src.replace("\n  items: 5\n", "\n  items: 6\n  item_types: [1, 2]\n", 1)
     text = text.replace("  window:", "  items: {track_types: [2]}\n  window:", 1)
-    from controller.canopen.config import parse_bus_config
+    from controller.canopen.config import parse_config
 
-    cfg = parse_bus_config(text, str(tmp_path / "bus.yml"),
+    cfg = parse_config(text, str(tmp_path / "bus.yml"),
                            base_dir=cmd_demo.DEFAULT_CONFIG.parent)
     assert cfg.tracking.track_types == frozenset({2}) and cfg.demo.item_types == (1, 2)
     app = PickPlace(cfg.demo)
@@ -154,7 +154,7 @@ def test_item_types_from_bus_yml_the_robot_picks_only_its_types(tmp_path):
 def test_item_type_errors_in_bus_yml_name_the_key():
     import pytest
 
-    from controller.canopen.config import parse_bus_config
+    from controller.canopen.config import parse_config
     from controller.errors import ConfigError
 
     src = cmd_demo.DEFAULT_CONFIG.read_text(encoding="utf-8")
@@ -164,6 +164,6 @@ def test_item_type_errors_in_bus_yml_name_the_key():
             ("  window:", "  items: {track_type: [1]}\n  window:", "track_type"),
             ("\n  items: 5\n", "\n  items: 5\n  item_types: [1, -1]\n", "item_types[1]")):
         with pytest.raises(ConfigError) as exc:
-            parse_bus_config(src.replace(old, new, 1), "bus.yml",
+            parse_config(src.replace(old, new, 1), "bus.yml",
                              base_dir=cmd_demo.DEFAULT_CONFIG.parent)
         assert exc.value.key.endswith(key) and exc.value.line, (new, exc.value)

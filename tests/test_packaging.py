@@ -52,8 +52,8 @@ def test_the_wheel_runs_the_demo_configuration(tmp_path):
     zipfile.ZipFile(wheel).extractall(site)
     code = ("import controller, sys\n"
             "from controller.cli.demo import DEFAULT_CONFIG\n"
-            "from controller.canopen.config import load_bus_config\n"
-            "cfg = load_bus_config(DEFAULT_CONFIG)\n"
+            "from controller.canopen.config import load_config\n"
+            "cfg = load_config(DEFAULT_CONFIG)\n"
             "print(controller.__file__); print(DEFAULT_CONFIG); print(sorted(cfg.slaves))\n")
     r = subprocess.run([sys.executable, "-S", "-c", code], capture_output=True, text=True,
                        cwd=tmp_path, env={"PYTHONPATH": f"{site}:{_site_packages()}"},
@@ -65,9 +65,9 @@ def test_the_wheel_runs_the_demo_configuration(tmp_path):
 
 
 def load_bus_config_here():
-    from controller.canopen.config import load_bus_config
+    from controller.canopen.config import load_config
 
-    return load_bus_config(ROOT / "examples" / "bus" / "demo.yml")
+    return load_config(ROOT / "examples" / "bus" / "demo.yml")
 
 
 def _site_packages() -> str:

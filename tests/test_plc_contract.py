@@ -354,10 +354,10 @@ def demo_cell(**plc_changes):
     """The demo's pick and place (photo-eye items) with the PLC node, the test PLC as its
     commander, python canopen's RemoteNode as its client."""
     from controller.canopen.apps.demo import PhotoEye, PickPlace
-    from controller.canopen.config import load_bus_config
+    from controller.canopen.config import load_config
     from controller.cli import demo as cmd_demo
 
-    cfg = load_bus_config(cmd_demo.DEFAULT_CONFIG)
+    cfg = load_config(cmd_demo.DEFAULT_CONFIG)
     plc = replace(PlcConfig(commander=PLC), **plc_changes)
     app = PickPlace(replace(cfg.demo, items=1), trigger_overflow=plc.trigger_overflow)
     with SimWorld(cfg, record=False) as sim:

@@ -15,7 +15,7 @@ from canopen.sdo import SdoAbortedError
 from test_plc_contract import PLC, Heartbeat, SteppedNetwork
 
 from controller.canopen.apps.demo import PhotoEye, PickPlace, Step
-from controller.canopen.config import load_bus_config
+from controller.canopen.config import load_config
 from controller.canopen.config.plc import PlcConfig
 from controller.canopen.master.cycle import Controller, Phase
 from controller.canopen.master.plc_node import attach_plc_node
@@ -30,7 +30,7 @@ def demo_cell(heartbeat: bool = True, track_types: frozenset[int] | None = None,
               **demo_changes):
     """The demo's pick and place with the PLC node; the PLC is python canopen's RemoteNode
     (SDO client, RPDO maps from the EDS) -> (ctl, app, node, remote)."""
-    cfg = load_bus_config(cmd_demo.DEFAULT_CONFIG)
+    cfg = load_config(cmd_demo.DEFAULT_CONFIG)
     if track_types is not None:
         cfg = replace(cfg, tracking=replace(cfg.tracking, track_types=track_types))
     app = PickPlace(replace(cfg.demo, **demo_changes))

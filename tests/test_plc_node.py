@@ -16,7 +16,7 @@ import canopen
 import pytest
 from controller.canopen.apps.demo import PhotoEye, PickPlace
 
-from controller.canopen.config import load_bus_config
+from controller.canopen.config import load_config
 from controller.canopen.io.transport import SteppedTransport
 from controller.canopen.master.app import ConveyorFollow
 from controller.canopen.master.cycle import Controller, Phase
@@ -251,7 +251,7 @@ def test_no_second_heartbeat(rig):
 def test_demo_plc_trigger_and_item_count(tmp_path):
     """The pick and place with the PLC node: the photo-eye items and one item triggered by
     the PLC (2004h) are counted in 2003h; the PLC's item is caught and placed too."""
-    cfg = load_bus_config(cmd_demo.DEFAULT_CONFIG)
+    cfg = load_config(cmd_demo.DEFAULT_CONFIG)
     from dataclasses import replace
     demo = replace(cfg.demo, items=1)
     app = PickPlace(demo)
@@ -332,7 +332,7 @@ def test_tpdo_remap_over_sdo_follows_cia301(rig):
 def _plc_demo(record: bool = False, **demo_changes):
     """The demo (PickPlace on the demo bus.yml, photo-eye items) with the PLC node and an SDO
     client of the PLC, booted and started -> (world, ctl, app, client)."""
-    cfg = load_bus_config(cmd_demo.DEFAULT_CONFIG)
+    cfg = load_config(cmd_demo.DEFAULT_CONFIG)
     app = PickPlace(replace(cfg.demo, **demo_changes))
     with SimWorld(cfg, record=record) as world:
         ctl = Controller(cfg, world.transport, app)

@@ -24,12 +24,12 @@ import json, os, signal, sys, threading, time
 import canopen
 from controller.cli import run as cmd_run
 from controller.canopen.io.clock import RealtimeClock
-from controller.canopen.config import load_bus_config
+from controller.canopen.config import load_config
 from controller.canopen.slave.rack import DeviceRack
 from controller.canopen.io.transport import DeviceThread, virtual_bus
 from controller.resources import data_path
 
-cfg = load_bus_config(sys.argv[1])
+cfg = load_config(sys.argv[1])
 clock = RealtimeClock()
 rack = DeviceRack.from_config(cfg, virtual_bus("plc-run"), clock)
 th = DeviceThread(rack, clock).start()

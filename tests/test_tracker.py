@@ -267,7 +267,7 @@ def test_functional_change_2_sync_limits_start_at_the_robot_maxima():
 def test_functional_change_2_partial_limits_in_files_start_at_the_robot_maxima(tmp_path):
     """The same rule in a scenario file and in bus.yml's .tracking.tracker: a partly given
     sync_trans keeps the robot's maxima for the fields it leaves out."""
-    from controller.canopen.config import load_bus_config
+    from controller.canopen.config import load_config
     from controller.canopen.testing import bus_yml_text
     from controller.simulate.scenario import load_scenario
 
@@ -287,7 +287,7 @@ def test_functional_change_2_partial_limits_in_files_start_at_the_robot_maxima(t
         "    sync_trans: {vel: 1000}\n")
     path = tmp_path / "bus.yml"
     path.write_text(text)
-    tp = load_bus_config(path).tracking.tracker
+    tp = load_config(path).tracking.tracker
     assert tp.sync_trans == Limits(1000.0, 50000.0, 1.0e6)
     assert tp.desync_trans == Limits(5000.0, 50000.0, 1.0e6)
     assert tp.sample_time_s == 0.002

@@ -392,10 +392,10 @@ _IN_ONE_PROCESS = """
 import sys
 from controller.cli import run as cmd_run
 from controller.canopen.io.clock import RealtimeClock
-from controller.canopen.config import load_bus_config
+from controller.canopen.config import load_config
 from controller.canopen.slave.rack import DeviceRack
 from controller.canopen.io.transport import DeviceThread, virtual_bus
-cfg = load_bus_config(sys.argv[1])
+cfg = load_config(sys.argv[1])
 clock = RealtimeClock()
 rack = DeviceRack.from_config(cfg, virtual_bus("t3"), clock)
 th = DeviceThread(rack, clock).start()

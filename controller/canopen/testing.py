@@ -12,7 +12,7 @@ from collections.abc import Iterable
 from pathlib import Path
 
 from ..resources import data_path
-from .config import BusConfig, load_bus_config
+from .config import ControllerConfig, load_config
 from .master.app import Application
 from .master.cycle import Controller
 from .slave.world import SimWorld
@@ -124,12 +124,12 @@ def bus_yml(directory: Path, axes: Iterable[str] = ("x", "y"), text: str | None 
     return p
 
 
-def stepped(cfg: BusConfig, app: Application | None = None,
+def stepped(cfg: ControllerConfig, app: Application | None = None,
             present: Iterable[str] | None = None, record: bool = False,
             **kw) -> tuple[SimWorld, Controller]:
     world = SimWorld(cfg, present=present, record=record)
     return world, Controller(cfg, world.transport, app, **kw)
 
 
-def load(directory: Path, **kw) -> BusConfig:
-    return load_bus_config(bus_yml(directory, **kw))
+def load(directory: Path, **kw) -> ControllerConfig:
+    return load_config(bus_yml(directory, **kw))

@@ -13,7 +13,7 @@ from __future__ import annotations
 import argparse
 import json
 
-from ..canopen.config import load_bus_config
+from ..canopen.config import load_config
 from ..canopen.io import canbus
 from ..canopen.io.transport import RealtimeTransport
 from ..canopen.master.checkbus import check_bus, parse_scan
@@ -38,7 +38,7 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None, prog: str = "cantrack check-bus") -> int:
     args = build_parser(prog).parse_args(argv)
-    cfg = load_bus_config(args.config)
+    cfg = load_config(args.config)
     try:
         scan = parse_scan(args.scan) if args.scan else None
     except ValueError as exc:

@@ -25,7 +25,7 @@ from pathlib import Path
 
 from ..canopen.apps.demo import PhotoEye, PickPlace
 from ..canopen.apps.report import PlotTrace, Telemetry, plot_run, status_line, summary_table
-from ..canopen.config import load_bus_config
+from ..canopen.config import load_config
 from ..canopen.io.canbus import StopSignals, seconds
 from ..canopen.io.rotating import BusLog
 from ..canopen.io.rotating import add_arguments as add_rotation_arguments
@@ -88,7 +88,7 @@ PLOT_POINTS = 20_000
 
 def main(argv: list[str] | None = None, prog: str = "cantrack demo") -> int:
     args = build_parser(prog).parse_args(argv)
-    cfg = load_bus_config(args.config)
+    cfg = load_config(args.config)
     if cfg.demo is None or cfg.tracking is None:
         raise ConfigError("the demo needs .tracking and .demo sections", file=cfg.file)
     demo = cfg.demo

@@ -23,7 +23,7 @@ from pathlib import Path
 import can
 
 from ..canopen.apps.record import LOG_FORMATS
-from ..canopen.config import load_bus_config
+from ..canopen.config import load_config
 from ..canopen.io import canbus
 from ..canopen.io.rotating import BusLog
 from ..canopen.io.rotating import add_arguments as add_rotation_arguments
@@ -61,7 +61,7 @@ def open_log(path: str, max_bytes: int = 0, max_age_s: float = 0.0,
 
 def main(argv: list[str] | None = None, prog: str = "cantrack record") -> int:
     args = build_parser(prog).parse_args(argv)
-    bitrate = load_bus_config(args.config).bitrate if args.config else 500_000
+    bitrate = load_config(args.config).bitrate if args.config else 500_000
     bus = canbus.open_bus(args, bitrate)
     try:
         logger = open_log(args.output, args.file_size, args.file_time, args.keep)

@@ -17,7 +17,7 @@ import argparse
 
 from ..canopen.apps.record import compare, drive_setpoints, encoder_stream, read_frames, replay
 from ..canopen.apps.report import write_telemetry
-from ..canopen.config import load_bus_config
+from ..canopen.config import load_config
 from ..canopen.master.app import ConveyorFollow
 from ..errors import ConfigError
 from ..tracking import Mode
@@ -41,7 +41,7 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None, prog: str = "cantrack replay") -> int:
     args = build_parser(prog).parse_args(argv)
-    cfg = load_bus_config(args.config)
+    cfg = load_config(args.config)
     if cfg.tracking is None:
         raise ConfigError("replay needs a .tracking section", file=cfg.file)
     frames = read_frames(args.log)

@@ -39,7 +39,7 @@ from collections import deque
 from collections.abc import Callable
 
 from ..canopen.apps.report import Telemetry, status_line, summary_table, timing_summary
-from ..canopen.config import load_bus_config
+from ..canopen.config import load_config
 from ..canopen.config.busload import check_bus_load
 from ..canopen.io import canbus
 from ..canopen.io.files import write_json_atomic
@@ -275,7 +275,7 @@ class _Changes(deque):
 
 def main(argv: list[str] | None = None, prog: str = "cantrack run") -> int:
     args = build_parser(prog).parse_args(argv)
-    cfg = load_bus_config(args.config)
+    cfg = load_config(args.config)
     if args.telemetry_every < 1:
         raise ConfigError(f"--telemetry-every (={args.telemetry_every}) must be >= 1")
     period = cfg.period_s

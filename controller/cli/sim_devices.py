@@ -20,7 +20,7 @@ import math
 import sys
 import time
 
-from ..canopen.config import load_bus_config
+from ..canopen.config import load_config
 from ..canopen.io import canbus
 from ..canopen.io.clock import RealtimeClock
 from ..canopen.io.transport import DeviceThread
@@ -136,7 +136,7 @@ def describe(rack: DeviceRack) -> str:
 
 def main(argv: list[str] | None = None, prog: str = "cantrack sim-devices") -> int:
     args = build_parser(prog).parse_args(argv)
-    cfg = load_bus_config(args.config)
+    cfg = load_config(args.config)
     names = list(cfg.slaves)
     if args.only:
         unknown = [n for n in args.only if n not in names]

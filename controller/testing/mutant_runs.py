@@ -1,7 +1,7 @@
 """The three mutant families of :mod:`controller.testing.mutants`, with their loaders and
 the short run that checks an accepted mutant.
 
-- ``bus``: examples/bus/demo.yml; loaded by ``load_bus_config``; an accepted one runs the
+- ``bus``: examples/bus/demo.yml; loaded by ``load_config``; an accepted one runs the
   stepped demo for ``run_s`` of machine time (boot, enable, the first item);
 - ``scenario``: examples/*.yaml; ``load_scenario``, an accepted one is simulated in full;
 - ``eds``: eds/cantrack-servo.eds and cantrack-encoder.eds, named by a copy of demo.yml;
@@ -121,8 +121,8 @@ class _BusBase:
         self.n = 0
 
     def _load(self, path: Path):
-        from ..canopen.config import load_bus_config
-        return load_bus_config(path)
+        from ..canopen.config import load_config
+        return load_config(path)
 
     def _run_demo(self, cfg) -> str | None:
         from ..canopen.apps.demo import PhotoEye, PickPlace

@@ -199,12 +199,12 @@ class HilBus:
         return args
 
     def load_config(self):
-        """The rig's :class:`~controller.canopen.config.BusConfig` (``--bus-config``)."""
-        from ..canopen.config import load_bus_config
+        """The rig's :class:`~controller.canopen.config.ControllerConfig` (``--bus-config``)."""
+        from ..canopen.config import load_config
 
         if self.bus_config is None:
             raise ValueError("no --bus-config given")
-        return load_bus_config(self.bus_config)
+        return load_config(self.bus_config)
 
     def wait_for_heartbeats(self, node_ids, timeout_s: float) -> set[int]:
         """Listen until every node of ``node_ids`` has sent a heartbeat, at most

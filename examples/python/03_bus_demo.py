@@ -25,7 +25,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from controller.canopen.apps.demo import PhotoEye, PickPlace
-from controller.canopen.config import load_bus_config
+from controller.canopen.config import load_config
 from controller.canopen.master.cycle import Controller
 from controller.canopen.slave.world import SimWorld
 
@@ -33,7 +33,7 @@ BUS_YML = Path(__file__).resolve().parents[1] / "bus" / "demo.yml"
 
 
 def run(items: int, out_dir: Path) -> dict:
-    cfg = load_bus_config(BUS_YML)
+    cfg = load_config(BUS_YML)
     demo = replace(cfg.demo, items=items)
     app = PickPlace(demo)
     bus_log = out_dir / "bus.log"

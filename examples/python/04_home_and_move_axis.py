@@ -22,14 +22,14 @@ import math
 from pathlib import Path
 
 from controller.canopen.apps.axis_motion import home, move
-from controller.canopen.config import load_bus_config
+from controller.canopen.config import load_config
 from controller.canopen.slave.world import SimWorld
 
 BUS_YML = Path(__file__).resolve().parents[1] / "bus" / "demo.yml"
 
 
 def run(target_mm: float = 100.0) -> dict:
-    cfg = load_bus_config(BUS_YML)
+    cfg = load_config(BUS_YML)
     axis = next(a for a in cfg.tracking.axes if a.name == "x")
     with SimWorld(cfg) as world:                      # the simulated drives, stepped time
         homed = home(cfg, "x", transport=world.transport)[0]

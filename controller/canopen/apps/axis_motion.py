@@ -40,10 +40,10 @@ __all__ = ["DI_HOME", "DI_NEG_LIMIT", "DI_POS_LIMIT", "DI_SLOW_DOWN", "DriveHomi
            "jog", "load_axes_config", "make_home_job", "move", "run_job", "run_jobs"]
 
 def load_axes_config(config) -> Any:
-    """``config`` (a bus.yml path or a loaded BusConfig) with its ``.tracking`` axes; a
+    """``config`` (a bus.yml path or a loaded ControllerConfig) with its ``.tracking`` axes; a
     ConfigError naming the file when it has none."""
-    from ..config import BusConfig, load_bus_config
-    cfg = config if isinstance(config, BusConfig) else load_bus_config(Path(config))
+    from ..config import ControllerConfig, load_config
+    cfg = config if isinstance(config, ControllerConfig) else load_config(Path(config))
     if cfg.tracking is None:
         raise ConfigError("no .tracking section: no axes", file=cfg.file)
     return cfg
@@ -79,7 +79,7 @@ def _run(cfg, jobs: Job | list[Job], transport=None, on_cycle: ProgressFn | None
 def move(config, axis: str, to: float, *, transport=None, on_cycle: ProgressFn | None = None,
          max_time_s: float = 600.0, setup=None) -> MotionReport:
     """Move ``axis`` to ``to`` [mm|deg, machine coordinate].  ``config``: bus.yml path or a
-    loaded BusConfig; ``transport``: a real bus (default: the simulated devices, stepped)."""
+    loaded ControllerConfig; ``transport``: a real bus (default: the simulated devices, stepped)."""
     cfg = load_axes_config(config)
     ax = axis_config(cfg, axis)
     return _run(cfg, MoveJob(ax, cfg.period_s, to), transport, on_cycle, max_time_s,

@@ -30,7 +30,7 @@ from ..config.concise import effective_pdos
 from ..protocol.pdo import PdoCodec
 
 if TYPE_CHECKING:
-    from ..config import BusConfig
+    from ..config import ControllerConfig
     from ..master.app import Application
     from ..master.cycle import Controller
 
@@ -75,7 +75,7 @@ def _per_sync(frames: Iterable[Frame], cob: int) -> list[bytes | None]:
     return out
 
 
-def encoder_stream(cfg: BusConfig, frames: Iterable[Frame]) -> list[int | None]:
+def encoder_stream(cfg: ControllerConfig, frames: Iterable[Frame]) -> list[int | None]:
     """The conveyor encoder's raw sample after each SYNC of ``frames`` (None: none sent)."""
     c = cfg.tracking.conveyor
     pdo = effective_pdos(cfg)[c.node].find("tpdo", [(c.index, c.sub_index)])
@@ -85,7 +85,7 @@ def encoder_stream(cfg: BusConfig, frames: Iterable[Frame]) -> list[int | None]:
             for d in _per_sync(frames, pdo.cob_id)]
 
 
-def drive_setpoints(cfg: BusConfig, frames: Sequence[Frame]) -> dict[str, list]:
+def drive_setpoints(cfg: ControllerConfig, frames: Sequence[Frame]) -> dict[str, list]:
     """Per tracking axis: per SYNC, (controlword, 607Ah) of the RPDO sent after it, or None."""
     out = {}
     pdos = effective_pdos(cfg)
@@ -163,7 +163,7 @@ def compare(recorded: dict[str, list], replayed: dict[str, list]) -> Comparison:
     return c
 
 
-def replay(cfg: BusConfig, stream: Sequence[int | None],
+def replay(cfg: ControllerConfig, stream: Sequence[int | None],
            app: Application | None = None,
            setup: Callable[[Controller, object], None] | None = None,
            max_cycles: int | None = None) -> tuple[Controller, list[Frame]]:

@@ -6,14 +6,14 @@
 - :mod:`.tracking` — ``.tracking`` (conveyor, axes, kinematics, tracker, timeouts);
 - :mod:`.simulation` — ``.simulation`` (simulated encoder and drives);
 - :mod:`.demo` — ``.demo`` (the pick-and-place demo's items and stations);
-- :mod:`.load` — :func:`load_bus_config`, all of it in order.
+- :mod:`.load` — :func:`load_config`, all of it in order.
 
 Layer ``config``: imports ``protocol`` and ``io`` (and the pure core), never the master, the
 slaves or the applications (docs/architecture.md).
 """
 
 from .bus import (
-    BusConfig,
+    ControllerConfig,
     MasterConfig,
     Options,
     PdoEntry,
@@ -21,7 +21,7 @@ from .bus import (
     SdoWrite,
     SlaveConfig,
 )
-from .load import load_bus_config, parse_bus_config
+from .load import load_config, parse_config
 
-__all__ = ["BusConfig", "MasterConfig", "Options", "PdoEntry", "PdoSetting", "SdoWrite",
-           "SlaveConfig", "load_bus_config", "parse_bus_config"]
+__all__ = ["ControllerConfig", "MasterConfig", "Options", "PdoEntry", "PdoSetting", "SdoWrite",
+           "SlaveConfig", "load_config", "parse_config"]

@@ -33,8 +33,10 @@ only warns).
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
+from types import MappingProxyType
 from typing import TYPE_CHECKING, Any
 
 from canopen.objectdictionary import ObjectDictionary
@@ -45,14 +47,17 @@ from ..io.canbus import BAUDRATES_KBIT
 from ..protocol import od as odm
 from ..protocol.eds_check import check_eds
 
-if TYPE_CHECKING:  # (the sections are read with the bus part: they import BusConfig)
+if TYPE_CHECKING:  # (the sections are read with the bus part: they import ControllerConfig)
     from .demo import DemoConfig
     from .plc import PlcConfig
     from .simulation import SimulationConfig
     from .tracking import TrackingConfig
 
-__all__ = ["BusConfig", "MasterConfig", "Options", "PdoEntry", "PdoSetting", "SdoWrite",
+__all__ = ["ControllerConfig", "MasterConfig", "Options", "PdoEntry", "PdoSetting", "SdoWrite",
            "SlaveConfig", "parse_bus"]
+
+#: a read-only empty mapping (the default of the config's mappings)
+_EMPTY: Mapping[Any, Any] = MappingProxyType({})
 
 #: top-level dot sections cantrack reads
 DOT_SECTIONS = (".tracking", ".simulation", ".demo", ".plc")
@@ -137,11 +142,11 @@ class SlaveConfig:
     mandatory: bool = False
     reset_communication: bool = True
     sdo: tuple[SdoWrite, ...] = ()
-    rpdo: dict[int, PdoSetting] = field(default_factory=dict)
-    tpdo: dict[int, PdoSetting] = field(default_factory=dict)
+    rpdo: Mapping[int, PdoSetting] = field(default_factory=lambda: _EMPTY)
+    tpdo: Mapping[int, PdoSetting] = field(default_factory=lambda: _EMPTY)
     line: int | None = None
     #: the dcfgen keys we accept but do not act on (kept for completeness)
-    other: dict[str, Any] = field(default_factory=dict)
+    other: Mapping[str, Any] = field(default_factory=lambda: _EMPTY)
 
     def hb_multiplier(self, options: Options) -> float:
         return self.heartbeat_multiplier if self.heartbeat_multiplier is not None \
@@ -149,18 +154,20 @@ class SlaveConfig:
 
 
 @dataclass(frozen=True)
-class BusConfig:
+class ControllerConfig:
     """A loaded bus.yml: dcfgen part, object dictionaries, and our dot sections.
 
-    Immutable: :func:`controller.canopen.config.load_bus_config` builds it complete (the
+    Immutable: :func:`controller.canopen.config.load_config` builds it complete (the
     sections are added with :func:`dataclasses.replace`, never by mutation); a changed copy
-    is made the same way.  (The dicts are not frozen: do not change them either.)"""
+    is made the same way.  Its mappings (``slaves``, ``ods``, each slave's ``rpdo``/``tpdo``,
+    ``simulation.devices``) are read-only views (:class:`types.MappingProxyType`).  The
+    object dictionaries themselves are python canopen's (mutable) objects: read them only."""
 
     file: str
     options: Options
     master: MasterConfig
-    slaves: dict[str, SlaveConfig]
-    ods: dict[str, ObjectDictionary]
+    slaves: Mapping[str, SlaveConfig]
+    ods: Mapping[str, ObjectDictionary]
     tracking: TrackingConfig | None = None
     simulation: SimulationConfig | None = None
     demo: DemoConfig | None = None
@@ -190,7 +197,7 @@ class BusConfig:
 
 
 # -- parsing -------------------------------------------------------------------------------
-def parse_bus(top: Section, base_dir: Path) -> tuple[BusConfig, set[str]]:
+def parse_bus(top: Section, base_dir: Path) -> tuple[ControllerConfig, set[str]]:
     """The dcfgen part of a bus.yml's top level ``top`` (``options``, ``master``, slaves) and
     the names of the dot sections present (read by :func:`controller.canopen.config.load`).
 
@@ -222,7 +229,8 @@ def parse_bus(top: Section, base_dir: Path) -> tuple[BusConfig, set[str]]:
         raise ConfigError("no slave configured (any top-level key other than options, "
                           "master and dot sections is a slave)", file=file, line=1)
     _check_node_ids(top, master, slaves)
-    return BusConfig(file, options, master, slaves, ods), dot
+    return ControllerConfig(file, options, master, MappingProxyType(slaves),
+                            MappingProxyType(ods)), dot
 
 
 def _options(s: Section) -> Options:
@@ -310,8 +318,8 @@ def _slave(name: str, s: Section, base_dir: Path,
         serial_number=s.int("serial_number", None, min=0, max=0xFFFFFFFF),
         boot=s.bool("boot", True), mandatory=s.bool("mandatory", False),
         reset_communication=s.bool("reset_communication", True),
-        sdo=sdo, rpdo=rpdo, tpdo=tpdo, line=s.line,
-        other={k: v for k, v in other.items() if v is not None})
+        sdo=sdo, rpdo=MappingProxyType(rpdo), tpdo=MappingProxyType(tpdo), line=s.line,
+        other=MappingProxyType({k: v for k, v in other.items() if v is not None}))
     s.finish()
     return slave, od
 
@@ -412,7 +420,8 @@ def _pdo(s: Section, number: int, is_rpdo: bool, od: ObjectDictionary, eds: str)
     return setting
 
 
-def _check_node_ids(top: Section, master: MasterConfig, slaves: dict[str, SlaveConfig]) -> None:
+def _check_node_ids(top: Section, master: MasterConfig,
+                    slaves: Mapping[str, SlaveConfig]) -> None:
     seen: dict[int, str] = {}
     for name, slave in slaves.items():
         sec = Section(top.data[name], top.file, name, slave.line)

@@ -29,7 +29,7 @@ from ...errors import ConfigError
 from .concise import effective_pdos
 
 if TYPE_CHECKING:
-    from .bus import BusConfig
+    from .bus import ControllerConfig
 
 log = logging.getLogger(__name__)
 
@@ -86,7 +86,7 @@ class BusLoad:
         return "\n".join(rows)
 
 
-def bus_load(cfg: BusConfig) -> BusLoad:
+def bus_load(cfg: ControllerConfig) -> BusLoad:
     """The worst-case load of ``cfg``'s cyclic traffic (see the module docstring)."""
     cycle_s = cfg.period_s
     items = [LoadItem("SYNC", 1.0, 1 if cfg.master.sync_overflow else 0)]
@@ -123,7 +123,7 @@ def bus_load(cfg: BusConfig) -> BusLoad:
     return BusLoad(tuple(items), cycle_s, cfg.bitrate)
 
 
-def check_bus_load(cfg: BusConfig) -> BusLoad:
+def check_bus_load(cfg: ControllerConfig) -> BusLoad:
     """The load of ``cfg``; warns above 60 %, raises ConfigError above 90 %."""
     load = bus_load(cfg)
     pct = 100.0 * load.load

@@ -27,7 +27,7 @@ from ..protocol import od as odm
 from ..protocol.pdo import INVALID, NodePdos, PdoSpec
 
 if TYPE_CHECKING:
-    from .bus import BusConfig, PdoSetting, SlaveConfig
+    from .bus import ControllerConfig, PdoSetting, SlaveConfig
 
 
 
@@ -185,7 +185,7 @@ def _configure_pdo(p: PdoState, s: PdoSetting, od: ObjectDictionary, node_id: in
     return sdo
 
 
-def concise_configuration(cfg: BusConfig) -> dict[str, SlaveConcise]:
+def concise_configuration(cfg: ControllerConfig) -> dict[str, SlaveConcise]:
     """Per slave: dcfgen's SDO list and the PDOs it leaves configured."""
     next_cob = [0x680]
     out: dict[str, SlaveConcise] = {}
@@ -248,7 +248,7 @@ def pdo_spec(p: PdoState) -> PdoSpec:
                    p.inhibit_time, p.event_timer, p.sync_start, tuple(p.mapping), p.line)
 
 
-def effective_pdos(cfg: BusConfig) -> dict[str, NodePdos]:
+def effective_pdos(cfg: ControllerConfig) -> dict[str, NodePdos]:
     """Per slave name: the PDOs as configured at the end of the boot."""
     out = {}
     for name, c in concise_configuration(cfg).items():
@@ -257,7 +257,7 @@ def effective_pdos(cfg: BusConfig) -> dict[str, NodePdos]:
     return out
 
 
-def pdo_enable_conflicts(cfg: BusConfig) -> list[tuple[str, str, int, int | None]]:
+def pdo_enable_conflicts(cfg: ControllerConfig) -> list[tuple[str, str, int, int | None]]:
     """(slave, kind, number, line) of PDOs asked to be enabled that dcfgen leaves disabled
     (EDS COB-ID with bit 31 set and no ``cob_id`` given)."""
     out = []
@@ -299,7 +299,7 @@ def cob_id_conflict(cob_id: int, own_node: int, nodes: dict[int, str]) -> str | 
     return None
 
 
-def check_cob_ids(cfg: BusConfig) -> None:
+def check_cob_ids(cfg: ControllerConfig) -> None:
     """A PDO enabled in bus.yml but left disabled by dcfgen, two PDOs with one COB-ID, a
     COB-ID that :func:`cob_id_conflict` refuses: :class:`~controller.errors.ConfigError`
     naming the file, line and key."""

@@ -26,7 +26,7 @@ from ...errors import ConfigError
 from ...yamlmarks import Section
 
 if TYPE_CHECKING:
-    from .bus import BusConfig
+    from .bus import ControllerConfig
     from .tracking import TrackingConfig
 
 
@@ -66,7 +66,7 @@ def _types(s: Section) -> tuple[int, ...]:
     return tuple(out)
 
 
-def parse_demo(s: Section, cfg: BusConfig, tracking: TrackingConfig | None) -> DemoConfig:
+def parse_demo(s: Section, cfg: ControllerConfig, tracking: TrackingConfig | None) -> DemoConfig:
     d = DemoConfig()
     pick = s.section("pick", {})
     place = s.section("place", {})

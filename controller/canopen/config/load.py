@@ -9,7 +9,7 @@ from pathlib import Path
 
 from ...errors import ConfigError
 from ...yamlmarks import Section, load_marked, read_text
-from .bus import BusConfig, parse_bus
+from .bus import ControllerConfig, parse_bus
 from .concise import check_cob_ids
 from .demo import parse_demo
 from .plc import parse_plc
@@ -17,16 +17,16 @@ from .simulation import parse_simulation
 from .tracking import parse_tracking
 
 
-def load_bus_config(path: str | Path, *, sections: bool = True) -> BusConfig:
+def load_config(path: str | Path, *, sections: bool = True) -> ControllerConfig:
     """Read and validate a bus.yml.  ``sections=False`` skips the dot sections."""
     p = Path(path)
     text = read_text(p)
-    return parse_bus_config(text, str(p), base_dir=p.parent, sections=sections)
+    return parse_config(text, str(p), base_dir=p.parent, sections=sections)
 
 
-def parse_bus_config(text: str, file: str, base_dir: Path | None = None, *,
-                     sections: bool = True) -> BusConfig:
-    """:func:`load_bus_config` of the text ``text`` of the file ``file`` (relative ``dcf``
+def parse_config(text: str, file: str, base_dir: Path | None = None, *,
+                 sections: bool = True) -> ControllerConfig:
+    """:func:`load_config` of the text ``text`` of the file ``file`` (relative ``dcf``
     paths from ``base_dir``, default: the file's directory)."""
     base_dir = Path(base_dir) if base_dir is not None else Path(file).parent
     data = load_marked(text, file)

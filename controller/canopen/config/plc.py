@@ -23,7 +23,7 @@ from typing import TYPE_CHECKING, TypeVar
 from ...yamlmarks import Section
 
 if TYPE_CHECKING:
-    from .bus import BusConfig
+    from .bus import ControllerConfig
 
 
 E = TypeVar("E", bound=Enum)
@@ -61,7 +61,7 @@ def _choice(s: Section, key: str, enum: type[E], default: E) -> E:
     return enum(value)
 
 
-def parse_plc(s: Section, cfg: BusConfig) -> PlcConfig:
+def parse_plc(s: Section, cfg: ControllerConfig) -> PlcConfig:
     d = PlcConfig()
     commander = s.int("commander", None, min=1, max=127)
     if commander is None:

@@ -28,14 +28,16 @@ Device units (counts) for the drives, mm and s for the belt.  Every key is optio
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from types import MappingProxyType
+from typing import TYPE_CHECKING
 
 from ...yamlmarks import Section, suggest
 from ..protocol import od as odm
 
 if TYPE_CHECKING:
-    from .bus import BusConfig
+    from .bus import ControllerConfig
 
 
 @dataclass(frozen=True)
@@ -75,7 +77,9 @@ class EncoderParams:
 @dataclass(frozen=True)
 class SimulationConfig:
     boot_delay_s: float = 0.005
-    devices: dict[str, Any] = field(default_factory=dict)
+    #: the simulated devices by slave name (a read-only mapping)
+    devices: Mapping[str, EncoderParams | DriveParams] = field(
+        default_factory=lambda: MappingProxyType({}))
 
 
 def _range(s: Section, key: str) -> tuple[int, int] | None:
@@ -90,9 +94,9 @@ def _range(s: Section, key: str) -> tuple[int, int] | None:
     return int(value[0]), int(value[1])
 
 
-def parse_simulation(s: Section, cfg: BusConfig) -> SimulationConfig:
+def parse_simulation(s: Section, cfg: ControllerConfig) -> SimulationConfig:
     boot = s.float("boot_delay_s", 0.005, min=0.0, max=10.0)
-    devices: dict[str, Any] = {}
+    devices: dict[str, EncoderParams | DriveParams] = {}
     for name, _ in list(s.items()):
         if name == "boot_delay_s":
             continue
@@ -109,7 +113,7 @@ def parse_simulation(s: Section, cfg: BusConfig) -> SimulationConfig:
         else:
             raise s.error(name, f"'{name}' is neither a CiA 402 drive nor a CiA 406 encoder: "
                                 "nothing to set", at_value=False)
-    return SimulationConfig(boot, devices)
+    return SimulationConfig(boot, MappingProxyType(devices))
 
 
 #: the fastest simulated belt [mm/s] (10 m/s) and the last time point of its profile [s]
@@ -117,7 +121,7 @@ MAX_BELT_SPEED = 10_000.0
 MAX_PROFILE_S = 1e9
 
 
-def _encoder(s: Section, cfg: BusConfig) -> EncoderParams:
+def _encoder(s: Section, cfg: ControllerConfig) -> EncoderParams:
     conv = cfg.tracking.conveyor if cfg.tracking is not None else None
     profile = []
     for item, line, path in s.list("profile", [[0.0, 300.0]]):

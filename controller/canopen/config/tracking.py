@@ -105,7 +105,7 @@ from ..protocol import od as odm
 from .reactions import Reactions, parse_reactions
 
 if TYPE_CHECKING:
-    from .bus import BusConfig
+    from .bus import ControllerConfig
 
 Vec3 = tuple[float, float, float]
 
@@ -217,7 +217,7 @@ class TrackingConfig:
         return tuple(a.node for a in self.axes)
 
 
-def parse_tracking(s: Section, cfg: BusConfig) -> TrackingConfig:
+def parse_tracking(s: Section, cfg: ControllerConfig) -> TrackingConfig:
     conveyor = _conveyor(s.section("conveyor"), cfg)
     kin = s.section("kinematics")
     kind = kin.str("type", "cartesian", choices=list(KINEMATICS))
@@ -267,7 +267,7 @@ def parse_tracking(s: Section, cfg: BusConfig) -> TrackingConfig:
                           delay, track_types, reactions, max_missed_in_row)
 
 
-def _slave_ref(s: Section, key: str, cfg: BusConfig, profile: int, what: str) -> str:
+def _slave_ref(s: Section, key: str, cfg: ControllerConfig, profile: int, what: str) -> str:
     name = s.str(key)
     if name not in cfg.slaves:
         from ...yamlmarks import suggest
@@ -279,7 +279,7 @@ def _slave_ref(s: Section, key: str, cfg: BusConfig, profile: int, what: str) ->
     return name
 
 
-def _conveyor(s: Section, cfg: BusConfig) -> ConveyorConfig:
+def _conveyor(s: Section, cfg: ControllerConfig) -> ConveyorConfig:
     from .concise import effective_pdos
     node = _slave_ref(s, "node", cfg, odm.PROFILE_ENCODER, "encoder")
     index = s.int("index", 0x6004, min=0x1000, max=0xFFFF)
@@ -331,7 +331,7 @@ def _conveyor(s: Section, cfg: BusConfig) -> ConveyorConfig:
     return conv
 
 
-def _configured_value(cfg: BusConfig, node: str, index: int, sub: int) -> int:
+def _configured_value(cfg: ControllerConfig, node: str, index: int, sub: int) -> int:
     for w in cfg.slaves[node].sdo:
         if w.index == index and w.sub_index == sub:
             return w.value
@@ -340,7 +340,7 @@ def _configured_value(cfg: BusConfig, node: str, index: int, sub: int) -> int:
     return int(value or 0)
 
 
-def _axes(s: Section, cfg: BusConfig, conveyor: ConveyorConfig) -> tuple[AxisConfig, ...]:
+def _axes(s: Section, cfg: ControllerConfig, conveyor: ConveyorConfig) -> tuple[AxisConfig, ...]:
     from .concise import effective_pdos
     pdos = effective_pdos(cfg)
     out = []
@@ -395,7 +395,7 @@ TOUCH_PROBE_OBJECTS = ((0x60B8, "touch probe function"), (0x60B9, "touch probe s
                        (0x60BA, "touch probe 1 positive edge position"))
 
 
-def _axis_homing(s: Section | None, motion: AxisMotionConfig, cfg: BusConfig | None = None,
+def _axis_homing(s: Section | None, motion: AxisMotionConfig, cfg: ControllerConfig | None = None,
                  node: str | None = None) -> AxisHomingConfig | None:
     if s is None:
         return None

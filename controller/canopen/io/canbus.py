@@ -57,7 +57,7 @@ def open_bus(args: argparse.Namespace, default_bitrate: int) -> can.BusABC:
 
 
 def bus_config_for(args: argparse.Namespace, cfg):
-    """The python-can bus settings for ``cfg`` (a BusConfig) -> (settings, cfg).
+    """The python-can bus settings for ``cfg`` (a ControllerConfig) -> (settings, cfg).
 
     A bitrate from -b, CAN_BITRATE or python-can's config file that differs from
     ``master.baudrate`` wins (it is what the bus runs at) and is logged; the returned cfg

@@ -20,7 +20,7 @@ from ..protocol.pdo import PdoCodec
 
 if TYPE_CHECKING:
     from ...kinematics import AxisScale
-    from ..config import BusConfig
+    from ..config import ControllerConfig
 
 
 @dataclass(slots=True)
@@ -35,7 +35,7 @@ class DriveInput:
         return cia402.decode_statusword(self.statusword)
 
 
-def _configured(cfg: BusConfig, node: str, index: int, sub: int) -> float:
+def _configured(cfg: ControllerConfig, node: str, index: int, sub: int) -> float:
     """The value the boot leaves in ``index:sub`` (bus.yml sdo list, else EDS default)."""
     from ..protocol import od as odm
     for w in cfg.slaves[node].sdo:
@@ -47,7 +47,7 @@ def _configured(cfg: BusConfig, node: str, index: int, sub: int) -> float:
 
 
 class AxisIO:
-    def __init__(self, cfg: BusConfig, axis_name: str, node: str, scale: AxisScale,
+    def __init__(self, cfg: ControllerConfig, axis_name: str, node: str, scale: AxisScale,
                  transport: Transport, hygiene: FrameHygiene | None = None) -> None:
         self.axis = axis_name
         self.node = node

@@ -36,7 +36,7 @@ from ..protocol.sdo import SdoAbortError, SdoClient
 from .events import EventLog
 
 if TYPE_CHECKING:
-    from ..config import BusConfig
+    from ..config import ControllerConfig
 
 
 class BootError(CanError):
@@ -51,7 +51,7 @@ class BootEmcys:
     """The EMCYs of the booting slaves (80h + node-ID), collected during the boot: each is
     an event, and a boot error of a node names the ones that node sent."""
 
-    def __init__(self, cfg: BusConfig, transport: Transport, slaves: list) -> None:
+    def __init__(self, cfg: ControllerConfig, transport: Transport, slaves: list) -> None:
         self.transport = transport
         self.cfg = cfg
         self.seen: dict[int, list[str]] = {}
@@ -116,7 +116,7 @@ def sync_consumer(od) -> bool:
     return value is not None and not int(value) & 0x40000000
 
 
-def cantrack_sdos(cfg: BusConfig, name: str) -> list[SdoValue]:
+def cantrack_sdos(cfg: ControllerConfig, name: str) -> list[SdoValue]:
     """cantrack's own SDO writes to slave ``name`` (after the bus.yml's)."""
     out = []
     od = cfg.ods[name]
@@ -138,7 +138,7 @@ def cantrack_sdos(cfg: BusConfig, name: str) -> list[SdoValue]:
     ]
 
 
-def required_slaves(cfg: BusConfig) -> set[str]:
+def required_slaves(cfg: ControllerConfig) -> set[str]:
     req = {n for n, s in cfg.slaves.items() if s.mandatory}
     if cfg.tracking is not None:
         req.add(cfg.tracking.conveyor.node)
@@ -146,7 +146,7 @@ def required_slaves(cfg: BusConfig) -> set[str]:
     return req
 
 
-def boot(cfg: BusConfig, transport: Transport, events: EventLog | None = None,
+def boot(cfg: ControllerConfig, transport: Transport, events: EventLog | None = None,
          timeouts: Timeouts | None = None) -> BootResult:
     """Run steps 1-4; returns what each node reported.  Raises BootError (naming the EMCYs
     the failing node sent during the boot)."""
@@ -171,7 +171,7 @@ def boot(cfg: BusConfig, transport: Transport, events: EventLog | None = None,
         emcys.close(events, transport.clock.now_ns() * 1e-9)
 
 
-def _boot(cfg: BusConfig, transport: Transport, events: EventLog, timeouts: Timeouts,
+def _boot(cfg: ControllerConfig, transport: Transport, events: EventLog, timeouts: Timeouts,
           slaves: list, current: list[int | None]) -> BootResult:
     clock = transport.clock
     t_start = clock.now_ns()
@@ -247,7 +247,7 @@ def _boot(cfg: BusConfig, transport: Transport, events: EventLog, timeouts: Time
     return result
 
 
-def heartbeat_ms(cfg: BusConfig, name: str) -> int:
+def heartbeat_ms(cfg: ControllerConfig, name: str) -> int:
     """The producer heartbeat time of slave ``name`` after the boot [ms] (0 = none)."""
     hb = cfg.slaves[name].heartbeat_producer_ms
     if hb is None:
@@ -256,7 +256,7 @@ def heartbeat_ms(cfg: BusConfig, name: str) -> int:
     return hb
 
 
-def _start_nodes(cfg: BusConfig, transport: Transport, present: list) -> None:
+def _start_nodes(cfg: ControllerConfig, transport: Transport, present: list) -> None:
     clock = transport.clock
     state: dict[int, int] = {}
     watched = {s.node_id: s for s in present if heartbeat_ms(cfg, s.name) > 0}
@@ -286,7 +286,7 @@ def _start_nodes(cfg: BusConfig, transport: Transport, present: list) -> None:
                             f"(05h = operational expected)", node_id)
 
 
-def _check_identity(cfg: BusConfig, name: str, sdo: SdoClient, od) -> tuple[int, ...]:
+def _check_identity(cfg: ControllerConfig, name: str, sdo: SdoClient, od) -> tuple[int, ...]:
     slave = cfg.slaves[name]
     eds = slave.dcf.name
 

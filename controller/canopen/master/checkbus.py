@@ -30,7 +30,7 @@ from ..protocol.sdo import SdoAbortError, SdoClient
 from .supervision import NMT_NAMES
 
 if TYPE_CHECKING:
-    from ..config import BusConfig
+    from ..config import ControllerConfig
     from ..io.transport import Transport
 
 INVALID = 0x80000000
@@ -130,7 +130,7 @@ def read_names(sdo: SdoClient) -> dict[str, str]:
     return out
 
 
-def expected_identity(cfg: BusConfig, name: str) -> list[tuple[int, int, str, int | None, str]]:
+def expected_identity(cfg: ControllerConfig, name: str) -> list[tuple[int, int, str, int | None, str]]:
     """(index, sub, what, expected value or None, source) of the identity objects."""
     slave = cfg.slaves[name]
     od = cfg.ods[name]
@@ -150,7 +150,7 @@ def expected_identity(cfg: BusConfig, name: str) -> list[tuple[int, int, str, in
             (0x1018, 4, "serial number", slave.serial_number, "bus.yml")]
 
 
-def _check_pdos(cfg: BusConfig, name: str, sdo: SdoClient, nc: NodeCheck) -> None:
+def _check_pdos(cfg: ControllerConfig, name: str, sdo: SdoClient, nc: NodeCheck) -> None:
     pdos = effective_pdos(cfg)[name]
     for p in sorted(pdos.all(), key=lambda p: p.comm_index):
         comm = p.comm_index
@@ -193,7 +193,7 @@ def _check_pdos(cfg: BusConfig, name: str, sdo: SdoClient, nc: NodeCheck) -> Non
                     f"{got & 0xFF} bit ({got:08X}h)", "bus.yml"))
 
 
-def check_bus(cfg: BusConfig, transport: Transport, *, scan: range | None = None,
+def check_bus(cfg: ControllerConfig, transport: Transport, *, scan: range | None = None,
               listen_s: float | None = None, sdo_timeout_s: float | None = None,
               pdos: bool = True) -> BusCheck:
     """Steps 1-4 of the module docstring on ``transport``."""

@@ -69,7 +69,7 @@ from .timing import Histogram, Ring, Run
 from .sync import SyncProducer
 
 if TYPE_CHECKING:
-    from ..config import BusConfig
+    from ..config import ControllerConfig
 
 
 class EnableError(CanError):
@@ -160,7 +160,7 @@ class Controller:
     #: would cost a deadline)
     GC_EVERY_CYCLES = 1000
 
-    def __init__(self, cfg: BusConfig, transport: Transport,
+    def __init__(self, cfg: ControllerConfig, transport: Transport,
                  app: Application | None = None, *, events: EventLog | None = None,
                  keep_trace: bool | int = True,
                  on_cycle: Callable[[Controller, CycleRecord], None] | None = None,

@@ -37,11 +37,11 @@ from ..protocol.frames import FrameHygiene
 from ..protocol.pdo import PdoCodec
 
 if TYPE_CHECKING:
-    from ..config import BusConfig
+    from ..config import ControllerConfig
 
 
 class MasterInput:
-    def __init__(self, cfg: BusConfig, transport: Transport,
+    def __init__(self, cfg: ControllerConfig, transport: Transport,
                  hygiene: FrameHygiene | None = None) -> None:
         c = cfg.tracking.conveyor
         self.conf = c

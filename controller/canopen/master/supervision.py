@@ -33,7 +33,7 @@ from ..protocol.emcy_codes import describe, is_error_reset
 from ..protocol.frames import FrameHygiene
 
 if TYPE_CHECKING:
-    from ..config import BusConfig
+    from ..config import ControllerConfig
 
 NMT_NAMES = {0: "boot-up", 4: "stopped", 5: "operational", 127: "pre-operational"}
 
@@ -127,7 +127,7 @@ class HeartbeatMonitor:
 
 class EmcyMonitor:
     def __init__(self, transport: Transport, hygiene: FrameHygiene | None = None,
-                 cfg: BusConfig | None = None) -> None:
+                 cfg: ControllerConfig | None = None) -> None:
         self.transport = transport
         self.hygiene = hygiene if hygiene is not None else FrameHygiene()
         self.cfg = cfg
@@ -170,7 +170,7 @@ class BusActors:
     (source, :class:`Disturbance`, detail) for the cycle; each kind of finding is reported
     once per node / command, later ones are counted in :attr:`counts`."""
 
-    def __init__(self, transport: Transport, hygiene: FrameHygiene, cfg: BusConfig,
+    def __init__(self, transport: Transport, hygiene: FrameHygiene, cfg: ControllerConfig,
                  sync_cob: int = 0x80) -> None:
         self.transport = transport
         self.hygiene = hygiene

@@ -24,7 +24,7 @@ from .encoder import SimEncoder
 from .node import SimNode
 
 if TYPE_CHECKING:
-    from ..config import BusConfig
+    from ..config import ControllerConfig
 
 
 class DeviceRack:
@@ -57,7 +57,7 @@ class DeviceRack:
                 d.on_timer(now_ns)
 
     @classmethod
-    def from_config(cls, cfg: BusConfig, bus: can.BusABC, clock: Clock,
+    def from_config(cls, cfg: ControllerConfig, bus: can.BusABC, clock: Clock,
                     present: Iterable[str] | None = None) -> DeviceRack:
         """One simulated device per slave of ``cfg`` (by the EDS's device profile).
 
@@ -87,7 +87,7 @@ class DeviceRack:
         return rack
 
 
-def _default_encoder(cfg: BusConfig) -> EncoderParams:
+def _default_encoder(cfg: ControllerConfig) -> EncoderParams:
     t = cfg.tracking
     if t is not None:
         return EncoderParams(counts_per_mm=t.conveyor.counts_per_mm, sign=t.conveyor.sign)

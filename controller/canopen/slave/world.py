@@ -29,7 +29,7 @@ from ..io.transport import (
 from .rack import DeviceRack
 
 if TYPE_CHECKING:
-    from ..config import BusConfig
+    from ..config import ControllerConfig
 
 _channels = itertools.count()
 
@@ -96,7 +96,7 @@ class FrameRecorder:
 class SimWorld:
     """Simulated devices + the controller's transport (+ a candump-format bus log)."""
 
-    def __init__(self, cfg: BusConfig, *, realtime: bool = False,
+    def __init__(self, cfg: ControllerConfig, *, realtime: bool = False,
                  present: Iterable[str] | None = None,
                  bus_log: str | Path | can.Listener | None = None,
                  channel: str | None = None, record: bool = False,
