@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from controller.conveyor import (FRAME_LIMITS, ITEM_MISSED_CODE, MOTION_LIMITS, ConveyorCell,
-                                 FrameBusyError,
+                                 EventKind, FrameBusyError,
                                  LinkState, Location, MovingFrame, NoFrameError,
                                  RobotGroup, SimulatedAxis, TooManyFramesError, Window,
                                  frame_limits)
@@ -170,6 +170,11 @@ def test_functional_change_2_master_above_frame_limits_is_an_error_that_desyncs(
     robot.trigger(f)
     outs = run(cell, 300, until=lambda o: o.error != TrackError.NONE)
     assert outs[-1].error == TrackError.MASTER_VELOCITY
+    # event kinds are EventKind members (a StrEnum: traces and summaries show the value)
+    events = [e for o in outs for e in o.events]
+    assert events and all(type(e.kind) is EventKind for e in events)
+    assert EventKind.TRACKER_ERROR in kinds(outs) and str(EventKind.TRACKER_ERROR) == \
+        f"{EventKind.TRACKER_ERROR}" == "tracker_error"
     assert "tracker_error" in kinds(outs)
     outs = run(cell, 200, until=lambda o: o.slave == 0)
     assert outs[-1].slave == 0 and robot.master_frame is None

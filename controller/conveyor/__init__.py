@@ -37,7 +37,7 @@ from .frames import ArcGeometry, FramePoint, LinearGeometry, RotaryGeometry, arc
 from .kinematics import Kinematics, KinematicsError, RobotType
 from .location import Location, compound, oplus, ominus, q_axis_angle
 from .motion import KEEP, MOTION_LIMITS, Motion, SCurve, VirtualRobot
-from .robot import Event, FrameLink, LinkState, RobotGroup, RobotOutput
+from .robot import Event, EventKind, FrameLink, LinkState, RobotGroup, RobotOutput
 from .sources import EncoderSource, FrameSource, SimulatedAxis, SourceState
 from .telemetry import ItemRecord, ItemStatus
 from .tracker import ArcPath, ConveyorTracker
@@ -46,7 +46,7 @@ from .window import Window, WindowPosition
 
 __all__ = [
     "ArcGeometry", "ArcGeometryError", "ArcPath", "CatchPrediction", "ConveyorCell",
-    "ConveyorTracker", "EncoderSource", "Event", "FRAME_LIMITS", "FrameBusyError", "FrameLink",
+    "ConveyorTracker", "EncoderSource", "Event", "EventKind", "FRAME_LIMITS", "FrameBusyError", "FrameLink",
     "FramePoint", "FrameSource", "ITEM_MISSED_CODE", "ItemRecord", "ItemStatus", "KEEP", "MOTION_LIMITS",
     "Kinematics", "KinematicsError", "RobotType",
     "LINEAR", "LinearGeometry", "LinkState", "Location", "Motion",

@@ -94,7 +94,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from enum import IntEnum
+from enum import IntEnum, StrEnum
 from typing import Any, Iterable, Mapping, Sequence, overload
 
 from ..errors import CantrackError, ParameterError, StateError
@@ -123,17 +123,35 @@ class LinkState(IntEnum):
     DONE = 4  #: detached
 
 
+class EventKind(StrEnum):
+    """What an :class:`Event` is about (a ``str``: traces and summaries show the value)."""
+
+    ITEM_ENTERED = "item_entered"      #: the tracked item entered the window
+    ENGAGED = "engaged"                #: a link engaged an item (its reference taken)
+    SYNCHRONIZED = "synchronized"      #: the link is synchronised with the item
+    ITEM_LEFT = "item_left"            #: the tracked item left the window
+    ITEM_MISSED = "item_missed"        #: softMC error 30238 (``code``)
+    ITEM_IGNORED = "item_ignored"      #: an item of a type the robot does not track
+    NEXTITEM = "nextitem"              #: NEXTITEM: the buffer's next item
+    LEAVE = "leave"                    #: a frame starts to be left (hand-off, none, STOP,
+    #:                                    slave = 0, error)
+    DESYNC_STARTED = "desync_started"  #: the de-sync started (``message``: line / arc)
+    DETACHED = "detached"              #: the link is done
+    HANDOFF = "handoff"                #: following goes over to another frame
+    TRACKER_ERROR = "tracker_error"    #: a tracker error (``message`` names it)
+    MOTION_STARTED = "motion_started"  #: a motion of the virtual robot started
+    COMMAND_ERROR = "command_error"    #: a command that failed (e.g. a nodal MasterFrame)
+    TRIGGER_REJECTED = "trigger_rejected"  #: a trigger the buffer refused (the simulator)
+
+
 @dataclass(frozen=True, slots=True)
 class Event:
-    """Something that happened at ``sample``.  ``kind``: item_entered, engaged, synchronized,
-    item_left, item_missed, nextitem, leave (a frame starts to be left: hand-off, none, STOP,
-    slave = 0, error), desync_started (``message``: along the line / arc), detached, handoff,
-    tracker_error, motion_started, command_error (a nodal MasterFrame that failed).
-    ``code``: 30238 for item_missed.  Commands given between two updates report their events
-    with the sample of the last update."""
+    """Something that happened at ``sample`` (``kind``: :class:`EventKind`).  ``code``: 30238
+    for item_missed.  Commands given between two updates report their events with the sample
+    of the last update."""
 
     sample: int
-    kind: str
+    kind: EventKind
     frame: str = ""
     item: int | None = None
     code: int = 0
@@ -343,7 +361,7 @@ class FrameLink:
         assert self.record is not None and self.item is not None  # engaging an item
         self.record.engaged_sample = k
         self.record.status = ItemStatus.TRACKING
-        ev.append(Event(k, "engaged", self.frame.name, self.item.id))
+        ev.append(Event(k, EventKind.ENGAGED, self.frame.name, self.item.id))
 
     def _close_item(self, k: int, ev: list[Event], status: ItemStatus | None) -> None:
         """The current item is finished for this link (left, NEXTITEM, missed, skipped)."""
@@ -385,7 +403,7 @@ class FrameLink:
         self.leaving = True
         self._reapproach = False
         fr = self.frame
-        ev.append(Event(k, "leave", fr.name, message=reason))
+        ev.append(Event(k, EventKind.LEAVE, fr.name, message=reason))
         if fr.engaged_by == self.robot.name:
             fr.engaged_by = None
         fr.desyncing_by.add(self.robot.name)
@@ -402,7 +420,7 @@ class FrameLink:
         fr = self.frame
         fr.desyncing_by.discard(self.robot.name)
         fr._unlink_if_free()
-        ev.append(Event(k, "detached", fr.name))
+        ev.append(Event(k, EventKind.DETACHED, fr.name))
 
     # -- cyclic -----------------------------------------------------------------------------
     def step(self, k: int, ev: list[Event]) -> TrackError:
@@ -420,13 +438,13 @@ class FrameLink:
             wp = self.window_position
             if wp == WindowPosition.INSIDE and rec.entered_sample is None:
                 rec.entered_sample = k
-                ev.append(Event(k, "item_entered", self.frame.name, self.item.id))
+                ev.append(Event(k, EventKind.ITEM_ENTERED, self.frame.name, self.item.id))
             st = self.track_state
             if wp == WindowPosition.AFTER:
                 if st == TrackState.SYNCED:
                     item = self.item
                     self.robot.buffer.remove(item)
-                    ev.append(Event(k, "item_left", self.frame.name, item.id))
+                    ev.append(Event(k, EventKind.ITEM_LEFT, self.frame.name, item.id))
                     self.advance(k, ev, ItemStatus.CAUGHT)
                 else:
                     err = self._missed(k, ev)
@@ -468,11 +486,11 @@ class FrameLink:
         if synced_now and rec is not None:
             rec.synced_sample = k
             rec.status = ItemStatus.CAUGHT
-            ev.append(Event(k, "synchronized", self.frame.name, rec.item_id))
+            ev.append(Event(k, EventKind.SYNCHRONIZED, self.frame.name, rec.item_id))
         if out.error and self.error == TrackError.NONE:
             self.error = out.error
             err = out.error
-            ev.append(Event(k, "tracker_error", self.frame.name,
+            ev.append(Event(k, EventKind.TRACKER_ERROR, self.frame.name,
                             self.item.id if self.item else None, message=out.error.name))
             if self.record is not None and not self.record.caught:
                 self.record.error = out.error.name
@@ -499,7 +517,7 @@ class FrameLink:
         rec.missed_sample = k
         rec.error = f"Item missed ({ITEM_MISSED_CODE})"
         self.robot.buffer.remove(item)
-        ev.append(Event(k, "item_missed", self.frame.name, item.id, ITEM_MISSED_CODE,
+        ev.append(Event(k, EventKind.ITEM_MISSED, self.frame.name, item.id, ITEM_MISSED_CODE,
                         f"Item missed: item {item.id} of frame {self.frame.name!r} left the "
                         "window before the robot was synchronised"))
         self._close_item(k, ev, ItemStatus.MISSED)
@@ -525,7 +543,7 @@ class FrameLink:
             self.robot.virtual.shift(Location(dpos, q_mul(q_conj(off), end)))
             self.offset_swing = s_end
         self.offset_pos, self.offset_ang = e.pos, e.ang
-        ev.append(Event(k, "desync_started", self.frame.name,
+        ev.append(Event(k, EventKind.DESYNC_STARTED, self.frame.name,
                         message=f"along the {self.tracker.desync_path}"))
 
 
@@ -689,7 +707,8 @@ class RobotGroup:
         frame._link()  # circle pre-calculation: ArcGeometryError for collinear points
         if active is not None:
             active.leave(k, ev, f"hand-off to {frame.name!r}")
-            ev.append(Event(k, "handoff", frame.name, message=f"from {active.frame.name!r}"))
+            ev.append(Event(k, EventKind.HANDOFF, frame.name,
+                            message=f"from {active.frame.name!r}"))
         link = FrameLink(self, frame, mode)
         frame.engaged_by = self.name
         self.links.append(link)
@@ -771,7 +790,7 @@ class RobotGroup:
             rec = self.records.get(e.id)
             if rec is not None and rec.status == ItemStatus.PENDING:
                 rec.status = ItemStatus.IGNORED
-            ev.append(Event(k, "item_ignored", e.frame, e.id,
+            ev.append(Event(k, EventKind.ITEM_IGNORED, e.frame, e.id,
                             message=f"type {e.item_type} is not tracked"))
 
     # -- triggers ---------------------------------------------------------------------------
@@ -902,7 +921,7 @@ class RobotGroup:
         if entry is None:
             return None
         ev = self._pending
-        ev.append(Event(self.k, "nextitem", name, entry.id))
+        ev.append(Event(self.k, EventKind.NEXTITEM, name, entry.id))
         if link is not None and link.item is entry:
             link.advance(self.k, ev, ItemStatus.SKIPPED)
         else:
@@ -996,7 +1015,7 @@ class RobotGroup:
                 try:
                     self._set_master_frame(m.master_frame, None, ev, k)
                 except CantrackError as exc:
-                    ev.append(Event(k, "command_error",
+                    ev.append(Event(k, EventKind.COMMAND_ERROR,
                                     getattr(m.master_frame, "name", "") or "", message=str(exc)))
         for link in list(self.links):
             e = link.step(k, ev)
@@ -1009,10 +1028,10 @@ class RobotGroup:
                 self._limit_superimposed(m)
             except ParameterError as exc:
                 v.queue.remove(m)
-                ev.append(Event(k, "command_error", message=str(exc)))
+                ev.append(Event(k, EventKind.COMMAND_ERROR, message=str(exc)))
                 continue
             v.start(m)
-            ev.append(Event(k, "motion_started", message=m.name or f"motion {m.id}"))
+            ev.append(Event(k, EventKind.MOTION_STARTED, message=m.name or f"motion {m.id}"))
         v.step()
         loc = v.location
         vel = list(v.velocity)

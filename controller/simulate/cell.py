@@ -59,12 +59,12 @@ from typing import Any
 
 import numpy as np
 
-from ..conveyor import (ConveyorCell, EncoderSource, Event, Kinematics, Location, MovingFrame,
-                        RobotGroup, SimulatedAxis, TriggerBufferFull, Window)
+from ..conveyor import (ConveyorCell, EncoderSource, Event, EventKind, Kinematics, Location,
+                        MovingFrame, RobotGroup, SimulatedAxis, TriggerBufferFull, Window)
 from ..conveyor.frame import LINEAR
 from ..conveyor.frames import LinearGeometry, RotaryGeometry
 from ..conveyor.sources import quantise_counts
-from ..conveyor.telemetry import ItemRecord
+from ..conveyor.telemetry import ItemRecord, ItemStatus
 from ..errors import CantrackError, ParameterError
 from ..tracking import Mode, TrackerParams, unwrap_counts
 from .conveyor import (FrameSpec, MasterSpec, PickProgram, ProgramSpec, RobotSpec,
@@ -449,8 +449,9 @@ class RobotTrace:
     picks: dict[int, float]
     robot: RobotGroup
 
-    def count(self, status: str) -> int:
-        return sum(1 for r in self.records if r.status.value == status)
+    def count(self, status: ItemStatus) -> int:
+        """The number of items whose last status is ``status``."""
+        return sum(1 for r in self.records if r.status == status)
 
     @property
     def caught(self) -> int:
@@ -574,14 +575,15 @@ def run_cell(sc: CellScenario) -> CellResult:
                                               item_type=sen.types[i],
                                               offset=sen.offset if group else None)
                 except TriggerBufferFull as exc:
-                    extra[rname].append(Event(k, "trigger_rejected", sen.frame, message=str(exc)))
+                    extra[rname].append(Event(k, EventKind.TRIGGER_REJECTED, sen.frame, message=str(exc)))
                     continue
                 triggers.append((k, rname, sen.frame, e.id, e.item_type))
         for rname, c in changes.get(k, ()):
             try:
                 robots[rname].set_master_frame(frames[c.frame] if c.frame else None)
             except CantrackError as exc:
-                extra[rname].append(Event(k, "command_error", c.frame or "", message=str(exc)))
+                extra[rname].append(Event(k, EventKind.COMMAND_ERROR, c.frame or "",
+                                          message=str(exc)))
         for rname, prog in programs.items():
             prog.tick(last[rname])
         outs = cell.step()
@@ -627,7 +629,7 @@ def write_cell_trace(result: CellResult, path: str | Path) -> Path:
         d: dict[int, list[str]] = {}
         for e in tr.events:
             d.setdefault(e.sample, []).append(
-                e.kind + (f"({e.item})" if e.item is not None else "")
+                e.kind.value + (f"({e.item})" if e.item is not None else "")
                 + (f"[{e.code}]" if e.code else ""))
         ev[rn] = d
     with path.open("w", newline="", encoding="utf-8") as fh:
@@ -684,19 +686,21 @@ def format_cell_summary(result: CellResult) -> str:
                      + (f"; {types}" if types else ""))
         n = len(tr.records)
         lines.append(f"  items    {n} triggered: {tr.caught} caught, {len(tr.picks)} picked, "
-                     f"{tr.count('missed')} missed ({ITEM_MISSED_CODE}), "
-                     f"{tr.count('skipped')} skipped, {tr.count('ignored')} ignored "
-                     f"(type not tracked), {tr.count('lost')} lost")
+                     f"{tr.count(ItemStatus.MISSED)} missed ({ITEM_MISSED_CODE}), "
+                     f"{tr.count(ItemStatus.SKIPPED)} skipped, {tr.count(ItemStatus.IGNORED)} ignored "
+                     f"(type not tracked), {tr.count(ItemStatus.LOST)} lost")
         for rec in tr.records:
             lines.append(f"  item {rec.item_id:3d} frame '{rec.frame}' type {rec.item_type}: "
                          f"{rec.status.value:8s} trigger {rec.trigger_s:.3f} s"
                          + ("" if rec.synced_s is None else f", synced {rec.synced_s:.3f} s")
                          + ("" if rec.time_to_sync_s is None
                             else f" (to sync {rec.time_to_sync_s:.3f} s)"))
-        hand = [e for e in tr.events if e.kind in ("handoff", "item_missed", "tracker_error",
-                                                   "command_error")]
+        hand = [e for e in tr.events if e.kind in (EventKind.HANDOFF, EventKind.ITEM_MISSED,
+                                                   EventKind.TRACKER_ERROR,
+                                                   EventKind.COMMAND_ERROR)]
         for e in hand:
-            lines.append(f"  {e.sample * T:.3f} s  {e.kind}  {e.frame}  {e.message}".rstrip())
+            lines.append(f"  {e.sample * T:.3f} s  {e.kind.value}  {e.frame}  "
+                         f"{e.message}".rstrip())
         lines.append(f"  final    IMFS {Imfs(int(tr.imfs[-1])).name}, slave "
                      f"{int(tr.slave[-1])}, MasterFrame {tr.master_frame[-1] or 'none'}, "
                      f"{len(tr.robot.buffer)} item(s) left in the buffer")
@@ -761,7 +765,7 @@ def plot_cell_result(result: CellResult, path: str | Path, *, dpi: int = 110) ->
             if rec.missed_sample is not None:
                 at.axvline(rec.missed_sample * r.sample_time_s, color="tab:red", lw=0.8)
         at.set_title(f"robot {rn}: {len(tr.records)} items, {tr.caught} caught, "
-                     f"{tr.count('missed')} missed", fontsize=9)
+                     f"{tr.count(ItemStatus.MISSED)} missed", fontsize=9)
         at.set_ylabel("TCP [mm]")
         at.grid(True, lw=0.4, alpha=0.6)
         at.legend(loc="upper left", fontsize=7, ncol=3)

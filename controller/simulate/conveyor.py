@@ -68,26 +68,27 @@ from __future__ import annotations
 import csv
 import math
 from dataclasses import dataclass, field
+from enum import StrEnum
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from ..conveyor import (FRAME_LIMITS, MOTION_LIMITS, SOFTMC_LIMIT_NAMES, CatchPrediction,
-                        ConveyorCell, EncoderSource, Event, Location, MovingFrame, RobotGroup,
-                        SimulatedAxis, TriggerBufferFull, Window, frame_limits)
+                        ConveyorCell, EncoderSource, Event, EventKind, Location, MovingFrame,
+                        RobotGroup, SimulatedAxis, TriggerBufferFull, Window, frame_limits)
 from ..conveyor.frame import LINEAR, ROTARY, ROTARY_DECOUPLED, TYPE_NAMES
 from ..conveyor.replay import (TriggerEvent, check_trigger_log, read_encoder_log,
                                read_trigger_log, write_encoder_log, write_trigger_log)
 from ..conveyor.sources import quantise_counts
-from ..conveyor.telemetry import ItemRecord
+from ..conveyor.telemetry import ItemRecord, ItemStatus
 from ..errors import ConfigError, ParameterError
 from ..limits import CartesianLimits, Limits
 from ..tracking import Imfs, Mode, TrackerParams
 from ..yamlmarks import Section, check_number
 from .reading import MAX_SAMPLES, SampledRun, segment_master, tracker_params, unit_vector
 
-__all__ = ["ConveyorScenario", "ConveyorResult", "PickProgram", "parse_conveyor",
+__all__ = ["ConveyorScenario", "ConveyorResult", "PickProgram", "PickState", "parse_conveyor",
            "run_conveyor", "write_conveyor_trace", "write_logs"]
 
 _TYPES = {"linear": LINEAR, "rotary": ROTARY, "rotary_decoupled": ROTARY_DECOUPLED,
@@ -461,6 +462,19 @@ def parse_conveyor(root: Section, source: Path | None) -> ConveyorScenario:
 
 
 # -- the pick program ----------------------------------------------------------------------
+class PickState(StrEnum):
+    """The step of :class:`PickProgram` (a ``str``: the summary shows the value)."""
+
+    IDLE = "idle"            #: waiting for the next item of the frame
+    ENGAGE = "engage"        #: slave = 3: waiting for the link to engage the item
+    APPROACH = "approach"    #: moving over the item, until synchronised
+    DESCEND = "descend"      #: going down onto the item
+    GRIP = "grip"            #: dwelling synchronised (the pick)
+    LIFT = "lift"            #: going up with the item
+    RECOVER = "recover"      #: the item was lost during the pick: motions finish as they are
+    PLACE = "place"          #: moving to the place position
+
+
 class PickProgram:
     """A small robot program, one item at a time (deterministic, sample-stepped).
 
@@ -491,7 +505,7 @@ class PickProgram:
         self.spec = spec
         self.slave = slave
         self.place = spec.place if spec.place is not None else robot.setpoint
-        self.state = "idle"
+        self.state: PickState = PickState.IDLE
         self.item = None
         self.until = 0
         self.picks: dict[int, float] = {}
@@ -509,16 +523,18 @@ class PickProgram:
         v = r.virtual
         for e in events:
             if self.item is not None and e.item == self.item.id and \
-                    e.kind in ("item_missed", "item_left", "tracker_error") and \
-                    self.state in ("engage", "approach", "descend", "grip"):
-                self._say(f"{e.kind}: finishing the motions as they are")
+                    e.kind in (EventKind.ITEM_MISSED, EventKind.ITEM_LEFT,
+                               EventKind.TRACKER_ERROR) and \
+                    self.state in (PickState.ENGAGE, PickState.APPROACH, PickState.DESCEND,
+                                   PickState.GRIP):
+                self._say(f"{e.kind.value}: finishing the motions as they are")
                 if self.item.id not in self.picks:
                     self.unpicked[self.item.id] = \
-                        f"{e.kind.replace('_', ' ')} during the {self.state} at " \
+                        f"{e.kind.value.replace('_', ' ')} during the {self.state.value} at " \
                         f"{self.robot.k * self.robot.T:.3f} s" + \
                         (f": {e.message}" if e.message else "")
-                self.state = "recover"
-        if self.state == "idle":
+                self.state = PickState.RECOVER
+        if self.state == PickState.IDLE:
             item = r.current_item(f)
             if item is None:
                 return
@@ -539,51 +555,51 @@ class PickProgram:
                 # robot at the engage is the reference); no MOVES to <MF>.zero - only the
                 # hover offset, relative, once the link has engaged this item
                 self._say("engage")
-                self.state = "engage"
+                self.state = PickState.ENGAGE
                 return
             zero = f.zero(item)
             hover = Location(tuple(a + b for a, b in zip(zero.pos, (0.0, 0.0, sp.approach_mm))),
                              zero.ori)
             r.moves(hover, name=f"approach item {item.id}")
             self._say("approach")
-            self.state = "approach"
-        elif self.state == "engage":
+            self.state = PickState.APPROACH
+        elif self.state == PickState.ENGAGE:
             link = r.link_for(f)
             if link is not None and link.item is self.item and link.ref is not None:
                 r.moves_rel((0.0, 0.0, sp.approach_mm), name=f"hover over item {self.item.id}")
                 self._say("approach")
-                self.state = "approach"
-        elif self.state == "approach":
+                self.state = PickState.APPROACH
+        elif self.state == PickState.APPROACH:
             if r.imfs == Imfs.SYNCHRONIZED and not v.busy:
                 r.moves_rel((0.0, 0.0, -sp.approach_mm), name=f"down to item {self.item.id}")
-                self.state = "descend"
-        elif self.state == "descend":
+                self.state = PickState.DESCEND
+        elif self.state == PickState.DESCEND:
             if not v.busy and r.imfs == Imfs.SYNCHRONIZED:
                 self.until = r.k + round(sp.dwell_s / r.T)
-                self.state = "grip"
-        elif self.state == "grip":
+                self.state = PickState.GRIP
+        elif self.state == PickState.GRIP:
             if r.k >= self.until:
                 self.picks[self.item.id] = r.k * r.T
                 self._say("picked")
                 r.moves_rel((0.0, 0.0, sp.approach_mm), name=f"lift item {self.item.id}")
-                self.state = "lift"
-        elif self.state == "lift":
+                self.state = PickState.LIFT
+        elif self.state == PickState.LIFT:
             if not v.busy:
                 if r.current_item(f) is self.item:
                     r.nextitem(f)
                 r.master_frame = None
                 r.moves(self.place, name="place")
-                self.state = "place"
-        elif self.state == "recover":
+                self.state = PickState.PLACE
+        elif self.state == PickState.RECOVER:
             if not v.busy:
                 if r.master_frame is not None:
                     r.master_frame = None
                 r.moves(self.place, name="place")
-                self.state = "place"
-        elif self.state == "place":
+                self.state = PickState.PLACE
+        elif self.state == PickState.PLACE:
             if not v.busy and r.slave == 0:
                 self.item = None
-                self.state = "idle"
+                self.state = PickState.IDLE
 
 
 # -- the result ------------------------------------------------------------------------------
@@ -617,8 +633,9 @@ class ConveyorResult:
     def sample_time_s(self) -> float:
         return self.scenario.sample_time_s
 
-    def count(self, status: str) -> int:
-        return sum(1 for r in self.records if r.status.value == status)
+    def count(self, status: ItemStatus) -> int:
+        """The number of items whose last status is ``status``."""
+        return sum(1 for r in self.records if r.status == status)
 
     @property
     def caught(self) -> int:
@@ -626,7 +643,7 @@ class ConveyorResult:
 
     @property
     def missed(self) -> int:
-        return self.count("missed")
+        return self.count(ItemStatus.MISSED)
 
     def item_coords(self, item_id: int, k: int) -> tuple[float, ...]:
         """The item's frame coordinates at sample ``k`` (mm / deg from its trigger)."""
@@ -757,7 +774,8 @@ def run_conveyor(sc: ConveyorScenario) -> ConveyorResult:
                 e = robot.trigger(frame, values=vals, dr_mm=it.dr_mm, inverse=it.inverse,
                                   item_type=it.item_type)
             except TriggerBufferFull as exc:   # reported, never silently dropped
-                rejected.append(Event(k, "trigger_rejected", frame.name, message=str(exc)))
+                rejected.append(Event(k, EventKind.TRIGGER_REJECTED, frame.name,
+                                      message=str(exc)))
                 continue
             triggers.append(TriggerEvent(k, robot.name, frame.name, e.values, e.dr_mm,
                                          e.inverse, e.item_type))
@@ -791,7 +809,7 @@ def run_conveyor(sc: ConveyorScenario) -> ConveyorResult:
         rec = robot.records[rid]
         if rec.caught and rid not in program.picks and rid not in unpicked:
             unpicked[rid] = (f"the run ended before the pick (program state "
-                             f"{program.state!r})" if program.item is not None and
+                             f"{program.state.value!r})" if program.item is not None and
                              program.item.id == rid else "caught, but the program did "
                              "not go for it")
     mv = np.array(mval)
@@ -836,7 +854,7 @@ def write_conveyor_trace(result: ConveyorResult, path: str | Path) -> Path:
     T = r.sample_time_s
     by_sample: dict[int, list[str]] = {}
     for e in r.events:
-        txt = e.kind + (f"({e.item})" if e.item is not None else "") + \
+        txt = e.kind.value + (f"({e.item})" if e.item is not None else "") + \
             (f"[{e.code}]" if e.code else "")
         by_sample.setdefault(e.sample, []).append(txt)
     with path.open("w", newline="", encoding="utf-8") as fh:

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from ..conveyor import EventKind, ItemStatus
 from ..tracking import TrackError, TrackState
 from ..tracking.metrics import PHASES, POS_TOL_MM, VEL_TOL
 from .runner import CycleResult, SimulationResult
@@ -193,10 +194,10 @@ def format_conveyor_summary(result) -> str:
     n = len(r.records)
     skipped_pred = len(r.skipped)
     lines.append(f"Items      {n} triggered: {r.caught} caught, {len(r.picks)} picked, "
-                 f"{r.missed} missed ({ITEM_MISSED_CODE}), {r.count('skipped')} skipped "
-                 f"({skipped_pred} by the prediction), {r.count('lost')} lost"
-                 + (f", {r.count('ignored')} ignored (type not tracked)"
-                    if r.count('ignored') else ""))
+                 f"{r.missed} missed ({ITEM_MISSED_CODE}), {r.count(ItemStatus.SKIPPED)} skipped "
+                 f"({skipped_pred} by the prediction), {r.count(ItemStatus.LOST)} lost"
+                 + (f", {r.count(ItemStatus.IGNORED)} ignored (type not tracked)"
+                    if r.count(ItemStatus.IGNORED) else ""))
     lines.append("")
     rows = []
     for rec in r.records:
@@ -223,13 +224,14 @@ def format_conveyor_summary(result) -> str:
         lines.append(f"  item {rid} skipped: {why}")
     for rid, why in sorted(getattr(r, "unpicked", {}).items()):
         lines.append(f"  item {rid} not picked: {why}")
-    errs = [e for e in r.events if e.kind in ("item_missed", "tracker_error", "command_error")]
+    errs = [e for e in r.events if e.kind in (EventKind.ITEM_MISSED, EventKind.TRACKER_ERROR,
+                                              EventKind.COMMAND_ERROR)]
     if errs:
         lines.append("")
         lines.append("Errors")
         for e in errs:
             code = f" [{e.code}]" if e.code else ""
-            lines.append(f"  {e.sample * T:.3f} s  {e.kind}{code}  item {e.item}  "
+            lines.append(f"  {e.sample * T:.3f} s  {e.kind.value}{code}  item {e.item}  "
                          f"{e.message}".rstrip())
     ttss = [rec.time_to_sync_s for rec in r.records if rec.time_to_sync_s is not None]
     if ttss:

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 from controller.conveyor import (
     ConveyorCell,
+    EventKind,
     Location,
     MovingFrame,
     RobotGroup,
@@ -54,8 +55,8 @@ def run() -> dict:
         out = cell.step()["scara"]
         imfs_samples[int(out.imfs)] += 1
         for e in out.events:
-            if e.kind in ("synchronized", "item_left", "item_missed"):
-                events.append((e.sample * T_S, e.kind, e.item))
+            if e.kind in (EventKind.SYNCHRONIZED, EventKind.ITEM_LEFT, EventKind.ITEM_MISSED):
+                events.append((e.sample * T_S, e.kind.value, e.item))
     items = [robot.records[i] for i in sorted(robot.records)]
     return {"items": items, "events": events, "imfs_samples": imfs_samples}
 

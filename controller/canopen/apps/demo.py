@@ -48,6 +48,7 @@ from typing import TYPE_CHECKING
 
 from ...conveyor import (
     ITEM_MISSED_CODE,
+    EventKind,
     Location,
     MovingFrame,
     RobotGroup,
@@ -61,6 +62,7 @@ from ...tracking import Imfs, MasterEstimate, Mode, MotionState, Tracker, TrackS
 from ...errors import StateError
 from ..config.demo import DemoConfig
 from ..master.app import AppStatus
+from ..master.events import EventKind as MasterEventKind
 from ..config.plc import TriggerOverflow
 
 if TYPE_CHECKING:
@@ -393,20 +395,20 @@ class PickPlace:
             self.imfs_log.append(imfs)
         for ev in out.events:
             ev_item = self._by_entry.get(ev.item) if ev.item is not None else None
-            if ev_item is not None and ev.kind == "engaged" and ev_item.outcome == "pending":
+            if ev_item is not None and ev.kind == EventKind.ENGAGED and ev_item.outcome == "pending":
                 ev_item.engage_cycle = cycle
                 ev_item.synced_cycle = None
-            elif ev_item is not None and ev.kind == "synchronized" \
+            elif ev_item is not None and ev.kind == EventKind.SYNCHRONIZED \
                     and ev_item.synced_cycle is None:
                 ev_item.synced_cycle = cycle
-            if ev.kind == "item_ignored" and ev_item is not None:
+            if ev.kind == EventKind.ITEM_IGNORED and ev_item is not None:
                 self._finish_item(ev_item, "ignored", ev.message)
-            if ev.kind == "item_missed" and ev.item in self._by_entry:
+            if ev.kind == EventKind.ITEM_MISSED and ev.item in self._by_entry:
                 item = self._by_entry[ev.item]
                 self._finish_item(item, "missed", f"left the window ({ev.code})")
                 if self.step in (Step.APPROACH, Step.FOLLOW):
                     self.step = Step.WAIT
-                ctl.events.add(cycle, (t_now - ctl.t0) * 1e-9, "demo", "item_missed",
+                ctl.events.add(cycle, (t_now - ctl.t0) * 1e-9, "demo", MasterEventKind.ITEM_MISSED,
                                f"item {item.index} missed ({ITEM_MISSED_CODE}): {ev.message}",
                                level=20)
         loc = out.setpoint
