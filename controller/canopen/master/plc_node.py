@@ -113,7 +113,7 @@ def attach_plc_node(ctl: Controller, app: Application | None = None,
     assert lim is not None  # (TrackerParams fills it in)
     node = PlcNode(host, ctl.transport, m.node_id, sync_period_us=m.sync_period_us,
                    sync_overflow=m.sync_overflow, heartbeat_ms=m.heartbeat_producer_ms or 0,
-                   sync_limits=(lim.vel, lim.acc, lim.jerk), config=config,
+                   sync_limits=lim, config=config,
                    reserved=reserved_cob_ids(m.node_id, config.commander, slaves, configured),
                    eds=eds, version=__version__)
     ctl.actors.nmt_slave = True  # (NMT to our node-ID: the node's, not another master's)

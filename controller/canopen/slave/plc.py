@@ -60,6 +60,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol
 
+from ...limits import Limits
 from ...resources import data_path
 from ...tracking import Mode, TrackState
 from ..config.plc import CommanderLoss, PlcConfig, TriggerOverflow
@@ -208,7 +209,7 @@ class PlcNode(SlaveEngine):
     kind = "controller"
 
     def __init__(self, host: PlcHost, bus: SlaveBus, node_id: int, *, sync_period_us: int,
-                 sync_overflow: int, heartbeat_ms: int, sync_limits: tuple[float, float, float],
+                 sync_overflow: int, heartbeat_ms: int, sync_limits: Limits,
                  config: PlcConfig | None = None,
                  reserved: Mapping[int, tuple[str, str | None]] | None = None,
                  eds: str | Path = EDS, version: str = "") -> None:
@@ -235,7 +236,7 @@ class PlcNode(SlaveEngine):
 
     # -- configuration ------------------------------------------------------------------
     def _configure(self, period_us: int, overflow: int, heartbeat_ms: int,
-                   limits: tuple[float, float, float], version: str) -> None:
+                   limits: Limits, version: str) -> None:
         self.store(0x1006, 0, int(period_us))
         self.store(0x1019, 0, int(overflow))
         self.store(0x1017, 0, int(heartbeat_ms))
@@ -249,7 +250,7 @@ class PlcNode(SlaveEngine):
             (5, list(TriggerOverflow).index(c.trigger_overflow)))
         for sub, setting in settings:
             self.store(0x2020, sub, setting)
-        for sub, value in zip((1, 2, 3), limits):
+        for sub, value in zip((1, 2, 3), (limits.vel, limits.acc, limits.jerk)):
             self.store(0x2010, sub, float(value))
         for sub, word in zip(_TYPE_SUBS, type_bits(self.host.track_types())):
             self.store(0x2015, sub, word)
