@@ -5,6 +5,7 @@ the same encoder samples."""
 
 from __future__ import annotations
 
+import math
 
 import pytest
 
@@ -63,12 +64,24 @@ def test_simulator_feeds_the_conditioner_what_the_encoder_gives():
 RES_DEG = 0.01
 
 
-def fmu_scenario() -> dict:
-    """An S-curve belt along X with a rotating frame (both encoders quantised), latency 2."""
+def fmu_scenario(jitter: float = 0.0) -> dict:
+    """An S-curve belt along X with a rotating frame (both encoders quantised), latency 2,
+    sampling instants off by up to ``jitter`` x T (known to the conditioner)."""
     sc = scenario(2)
     sc["master"]["segments"][0]["c_rate"] = 10.0
     sc["conditioning"]["resolution_deg"] = RES_DEG
+    sc["conditioning"]["jitter"] = jitter
     return sc
+
+
+def _sim_jitter(sc, warm: int):
+    """The simulator's sampling-instant offsets per conditioner cycle [s]
+    (controller.simulate.master: seeded, uniform in +-jitter*T)."""
+    import numpy as np
+
+    cs = sc.conditioning
+    rng = np.random.default_rng(cs.seed)
+    return rng.uniform(-cs.jitter, cs.jitter, sc.n_samples + 1 + warm) * T
 
 
 def _sim_warm(sc) -> int:
@@ -101,32 +114,41 @@ def _optimal_or_skip() -> None:
         pytest.skip("the optimal planner needs ruckig")
 
 
-def test_fmu_raw_encoder_input_is_bit_identical_to_the_simulator(fmu_path):
+@pytest.mark.parametrize("jitter", [0.0, 0.1])
+def test_fmu_raw_encoder_input_is_bit_identical_to_the_simulator(fmu_path, jitter):
     """The FMU with master_input=1 fed the simulator's raw encoder samples (its warm-up
-    history first, then the run; the unused velocity/acceleration inputs set to nonsense)
-    gives the simulator's setpoints, velocities, accelerations and states bit for bit,
-    through the approach into SYNCED and an S-curve speed change."""
+    history first, then the run; the unused velocity/acceleration inputs set to nonsense;
+    with jitter, each sample's instant offset in encoder_time_offset) gives the simulator's
+    setpoints, velocities, accelerations and states bit for bit, through the approach into
+    SYNCED and an S-curve speed change."""
     pytest.importorskip("fmpy")
     _optimal_or_skip()
-    from controller.fmu.runner import FmuTracker
+    from controller.fmu.runner import CoreRun, FmuTracker
     from controller.simulate.runner import simulate
     from controller.tracking import MotionState
 
-    sc = load_scenario(fmu_scenario())
+    sc = load_scenario(fmu_scenario(jitter))
     res = simulate(sc)
     warm = _sim_warm(sc)
     prof = build_profile(sc.master)
     L = sc.conditioning.latency_samples
     ke = sc.engage_samples[0]
+    delta = _sim_jitter(sc, warm)
 
     def at(j: int):  # FMU step j = conditioner cycle j = simulator sample j - warm
-        st = prof.state((j - warm - L) * T)
+        st = prof.state((j - warm - L) * T + delta[j])
         return MotionState((_quantise(st.pos[0], Q), _quantise(st.pos[1], Q),
                             _quantise(st.pos[2], Q)), (1e4, -1e4, 7.0), (-3e5, 2e5, 1.0),
                            _quantise(st.ang, RES_DEG), 123.0, -456.0), j - warm > ke
 
     with FmuTracker(fmu_path, start_values=_encoder_start(L)) as fmu:
-        got = fmu.run(at, warm + sc.n_samples, T)
+        got = CoreRun([], [])
+        for j in range(warm + sc.n_samples):
+            if jitter:
+                fmu.set({"encoder_time_offset": float(delta[j])})
+            step = fmu.run(at, 1, T, first_step=j)
+            got.reals += step.reals
+            got.ints += step.ints
         status, outliers = fmu.get_ints(["master_status", "master_outliers"])
         warnings = [m for m in fmu.messages if m[0] >= 1]
     n_cmp = 0
@@ -269,6 +291,31 @@ def test_fmu_engage_waits_for_the_warm_up(fmu_path):
     assert set(states[:first_ok + 1]) == {TrackState.OFF}
     assert states[first_ok + 1] == TrackState.SYNCING and TrackState.SYNCED in states
     assert len(messages) == 1 and "waits" in messages[0][2] and "STARTING" in messages[0][2]
+
+
+def test_fmu_non_finite_time_offset_is_refused_and_repeatable(fmu_path):
+    """A NaN encoder_time_offset with master_input=1: the step is refused (Discard) before
+    anything changes, naming the input; with a finite value the same step runs."""
+    from fmpy.fmi1 import FMICallException
+
+    from controller.fmu.runner import FmuTracker
+    from controller.tracking import MotionState
+
+    with FmuTracker(fmu_path, start_values={"planner": 0, "sample_time": T, "master_input": 1,
+                                            "encoder_resolution": Q}) as fmu:
+        for j in range(50):
+            fmu.step(MotionState((_quantise(300.0 * j * T, Q), 0.0, 0.0)), False, T)
+        before = fmu.outputs(), fmu.get_ints(["master_status", "master_outliers"])
+        fmu.set({"encoder_time_offset": math.nan})
+        with pytest.raises(FMICallException) as exc:
+            fmu.step(MotionState((_quantise(300.0 * 50 * T, Q), 0.0, 0.0)), False, T)
+        assert exc.value.status == 2
+        assert (fmu.outputs(), fmu.get_ints(["master_status", "master_outliers"])) == before
+        assert "non-finite encoder_time_offset=nan" in fmu.messages[-1][2]
+        fmu.set({"encoder_time_offset": 0.0002})
+        fmu.step(MotionState((_quantise(300.0 * 50 * T, Q), 0.0, 0.0)), False, T)
+        assert fmu.time == pytest.approx(51 * T)
+        assert len([m for m in fmu.messages if m[0] >= 1]) == 1  # the refusal only
 
 
 def test_fmu_encoder_two_samples_per_step_and_state(fmu2_path):

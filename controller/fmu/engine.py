@@ -34,7 +34,10 @@ sample per communication step), and gives the tracker the belt's position, veloc
 acceleration and jerk at each setpoint's time (lag compensated by prediction).  The same
 conditioner as the simulator's ``conditioning:`` section (latency_samples =
 encoder_latency + 1) and the CAN shell's ``conveyor.conditioning``: for the same samples
-the setpoints are bit-identical (tests/test_conditioning_shells.py).  Outputs:
+the setpoints are bit-identical (tests/test_conditioning_shells.py).  The input
+``encoder_time_offset`` [s] says how much later than nominal the step's sample was taken
+(known arrival jitter, as the simulator's ``jitter`` and the CAN shell's SYNC lateness;
+non-finite: the step is refused, Discard, nothing changed).  Outputs:
 ``master_status`` (0 STARTING: warming up, 1 OK, 2 COASTING: the step's sample was rejected,
 3 LOST; the worst axis) and ``master_outliers`` (samples rejected so far).  A rising edge of
 ``engage`` while the status is 0 or 3 waits (one warning) and acts at the first step after
@@ -320,6 +323,10 @@ VARIABLES: list[tuple] = [
     ("master_outliers", "Integer", "output", "discrete", None, None,
      "Encoder samples rejected as outliers since initialisation, all axes (master_input=1)",
      {}),
+    ("encoder_time_offset", "Real", "input", "continuous", 0.0, "s",
+     "master_input=1: how much later than its nominal instant (the step start minus "
+     "encoder_latency samples) the step's raw positions were sampled: the known arrival "
+     "jitter, e.g. a measured SYNC lateness (0: on time)", {}),
 ]
 
 #: value reference of each variable (its position in VARIABLES)
@@ -332,6 +339,7 @@ _OUT_END = VR["error"] + 1
 assert [row[0] for row in VARIABLES[_OUT_FIRST:_OUT_END]] == [
     "x", "y", "z", "c", "vx", "vy", "vz", "vc", "ax", "ay", "az", "ac", "imfs", "state", "error"]
 _VR_MSTATUS, _VR_MOUTLIERS = VR["master_status"], VR["master_outliers"]
+_VR_TOFF = VR["encoder_time_offset"]
 _PARAMETER_NAMES = [row[0] for row in VARIABLES if row[2] == "parameter"]
 #: fixed parameters: settable only until ``exitInitializationMode``
 _FIXED = [(i, row[0]) for i, row in enumerate(VARIABLES) if row[3] == "fixed"]
@@ -746,6 +754,11 @@ class TrackerEngine:
                             f"(outputs and tracker state as at t={self.time!r} s): set finite "
                             f"values and repeat the step, or restore a saved FMU state", DISCARD)
                 return DISCARD
+        if self.conditioners is not None and not math.isfinite(self.v[_VR_TOFF]):
+            self.report(f"{self.instance_name}: step at t={current_time!r} s refused: "
+                        f"non-finite encoder_time_offset={self.v[_VR_TOFF]!r}; nothing "
+                        f"changed: set a finite value and repeat the step", DISCARD)
+            return DISCARD
         try:
             self._step(n, T, master)
         except ParameterError as exc:
@@ -820,11 +833,12 @@ class TrackerEngine:
         assert conds is not None and tracker is not None  # initialised: the caller checked
         cx, cy, cz, cc = conds
         raw = master_values[0], master_values[1], master_values[2], master_values[9]
+        off = float(self.v[_VR_TOFF])
         update = tracker.update
         for i in range(n):
             if i == 0:
-                outs = (cx.update(raw[0]), cy.update(raw[1]), cz.update(raw[2]),
-                        cc.update(raw[3]))
+                outs = (cx.update(raw[0], off), cy.update(raw[1], off), cz.update(raw[2], off),
+                        cc.update(raw[3], off))
                 status = combined_status(outs)
                 if status == MasterStatus.LOST:
                     self._master_lost(tracker, outs)
