@@ -221,9 +221,10 @@ def run_belt(case: BeltCase, input_name: str) -> dict:
     follow[:settle] = False
     err = np.linalg.norm(sp - tp, axis=1)
     change = case.belt.in_change(t_sp, SETTLE_CHANGE_S)
-    # glitches once the input is valid (during the warm-up there is no belt to judge by)
+    # glitches once there is a belt to judge by: the estimator's input once valid, the
+    # conditioner's from its fifth sample on (it gates in the warm-up too, eq. 3.1)
     big = np.abs(stream.glitch_mm) >= 1.0
-    big[:k_ready] = False
+    big[:k_ready if input_name == "estimator" else 4] = False
     return {"case": case.id, "input": input_name, "T": T, "count_mm": case.count_mm,
             "limits": case.limits, "at_jerk_max": case.at_jerk_max,
             "error": tr.error.name, "synced": bool(synced.any()),

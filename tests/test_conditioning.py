@@ -549,3 +549,30 @@ def test_jerk_step_detector_keeps_the_output_a_belt_motion(belt, count, T, seed)
     late = np.arange(n) * T > 1.0
     truth = belt.states((np.arange(n) + 1) * T)[:, 0]
     assert np.abs(out[late & ok, 0] - truth[late & ok]).max() < 1.0
+
+
+def test_glitch_in_the_warm_up_is_rejected_and_the_output_starts_on_the_belt():
+    """A 3 mm glitch in the warm-up (before: taken in by the wide-prior filter, so the output
+    started 33 mm/s off and swung 5 mm away from the belt): rejected as an outlier, and the
+    first valid outputs are on the belt."""
+    T = 0.002
+    belt = Belt(300.0)
+    n = 200
+    c = MasterConditioner(ConditioningParams(T, EncoderModel(0.01, 1), FRAME))
+    stream = EncoderSim(0.01, 1, 0.1, seed=2).samples(belt, T, n)
+    k_glitch = c.params.warmup // 2
+    events = []
+    err = []
+    for k in range(n):
+        x, off = stream.sample(k)
+        if k == k_glitch:
+            x += 3.0
+        o = c.update(x, off)
+        if o.event is not None:
+            events.append(o.event)
+        if o.valid:
+            err.append(abs(o.pos - belt.state((k + 1) * T)[0]))
+    assert [e.kind for e in events[:1]] == [EventKind.OUTLIER]
+    assert events[0].sample == k_glitch and abs(events[0].size_mm - 3.0) < 0.1
+    assert c.n_outliers == 1
+    assert max(err) < 0.02

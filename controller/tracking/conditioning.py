@@ -306,6 +306,8 @@ JERK_STEP_WINDOW_S = 0.04
 JERK_STEP_MEMORY_S = 0.005
 #: after a detection the next one is not before this long [s] (the gains run down first)
 JERK_STEP_HOLD_S = 0.06
+#: the warm-up's gate: base + this many standard deviations of the innovation (eq. 3.1)
+WARMUP_GATE_SIGMA = 6.0
 #: the KINEMATIC law's pole is at most this / T [rad/s] (eq. 4.2): a discrete law with a
 #: faster pole rings when it saturates after a detected jerk step
 OUTPUT_POLE_T = 0.25
@@ -510,7 +512,18 @@ class MasterConditioner:
         else:  # warm-up: the full filter from the wide prior
             F = _f_matrix(dt)
             P = F @ self._P @ F.T + _q_matrix(self._q_warm, dt)
-            Kv = P[:, 0] / (P[0, 0] + self._r)
+            S = P[0, 0] + self._r
+            # the gate in the warm-up (eq. 3.1): once the cubic is determined, a sample
+            # beyond WARMUP_GATE_SIGMA of the innovation's own spread (plus the gate's base)
+            # is an outlier too -- one glitch taken in would spoil the estimate for the
+            # whole warm-up (and the output started on it)
+            if self._n >= 4 and abs(innov) > self._gate + WARMUP_GATE_SIGMA * math.sqrt(S):
+                self._bad += 1
+                self._x, self._tx, self._P = xp, ts, P
+                if self._bad >= self.params.max_outliers:
+                    return EventKind.LOST, innov
+                return EventKind.OUTLIER, innov
+            Kv = P[:, 0] / S
             self._P = P - np.outer(Kv, P[0, :])
             xn = np.asarray(xp) + Kv * innov
             self._x = (float(xn[0]), float(xn[1]), float(xn[2]), float(xn[3]))
