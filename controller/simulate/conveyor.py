@@ -74,61 +74,25 @@ from typing import Any
 
 import numpy as np
 
-from ..conveyor import (FRAME_LIMITS, MOTION_LIMITS, SOFTMC_LIMIT_NAMES, CatchPrediction,
-                        ConveyorCell, EncoderSource, Event, EventKind, Location, MovingFrame,
-                        RobotGroup, SimulatedAxis, TriggerBufferFull, Window, frame_limits)
-from ..conveyor.frame import LINEAR, ROTARY, ROTARY_DECOUPLED, TYPE_NAMES
-from ..conveyor.replay import (TriggerEvent, check_trigger_log, read_encoder_log,
-                               read_trigger_log, write_encoder_log, write_trigger_log)
+from ..cell.elements import (FrameSpec, MasterSpec, ProgramSpec, RobotSpec, read_frame,
+                             read_master, read_program, read_robot)
+from ..cell.reading import MAX_SAMPLES, SampledRun, tracker_params
+from ..conveyor import (CatchPrediction, ConveyorCell, EncoderSource, Event, EventKind,
+                        Location, MovingFrame, RobotGroup, SimulatedAxis, TriggerBufferFull)
+from ..conveyor.frame import LINEAR, TYPE_NAMES
+from ..conveyor.replay import (TriggerEvent, check_trigger_log, read_trigger_log,
+                               write_encoder_log, write_trigger_log)
 from ..conveyor.sources import quantise_counts
 from ..conveyor.telemetry import ItemRecord, ItemStatus
-from ..errors import ConfigError, ParameterError
-from ..limits import CartesianLimits, Limits
+from ..errors import ConfigError
 from ..tracking import Imfs, Mode, TrackerParams
 from ..yamlmarks import Section, check_number
-from .reading import MAX_SAMPLES, SampledRun, segment_master, tracker_params, unit_vector
 
 __all__ = ["ConveyorScenario", "ConveyorResult", "PickProgram", "PickState", "parse_conveyor",
            "run_conveyor", "write_conveyor_trace", "write_logs"]
 
-_TYPES = {"linear": LINEAR, "rotary": ROTARY, "rotary_decoupled": ROTARY_DECOUPLED,
-          0: LINEAR, 1: ROTARY, 2: ROTARY_DECOUPLED}
-
 
 # -- the scenario ------------------------------------------------------------------------
-@dataclass(frozen=True)
-class FrameSpec:
-    name: str
-    type: int
-    window: Window
-    limits: CartesianLimits
-    origin: Location = Location()
-    direction: tuple[float, float, float] = (1.0, 0.0, 0.0)
-    scale_mm_per_unit: float = 1.0
-    upstream: Location | None = None
-    arc_point: tuple[float, float, float] | None = None
-    downstream: tuple[float, float, float] | None = None
-    up_master: float = 0.0
-    down_master: float | None = None
-
-
-@dataclass(frozen=True)
-class EncoderSpec:
-    counts_per_unit: float
-    modulus: int = 0
-    window: int = 16
-
-
-@dataclass(frozen=True)
-class MasterSpec:
-    start: float = 0.0
-    speed: float = 0.0
-    profile: Any = None  #: a SegmentMaster (x component used) or None
-    encoder: EncoderSpec | None = None
-    log: tuple[int, ...] | None = None
-    log_path: Path | None = None
-
-
 @dataclass(frozen=True)
 class ItemSpec:
     """One item: sensor time [s] (or the logged sample) and what the TRIGGER records."""
@@ -139,27 +103,6 @@ class ItemSpec:
     sample: int | None = None
     values: tuple[float, ...] | None = None
     item_type: int = 0
-
-
-@dataclass(frozen=True)
-class RobotSpec:
-    name: str
-    start: Location
-    base: Location = Location()
-    tool: Location = Location()
-    slave: int = 5
-    buffer_capacity: int = 32
-    motion: CartesianLimits = MOTION_LIMITS
-    #: the item types the robot tracks on the frame (None: every type)
-    track_types: frozenset[int] | None = None
-
-
-@dataclass(frozen=True)
-class ProgramSpec:
-    approach_mm: float = 50.0
-    dwell_s: float = 0.1
-    place: Location | None = None
-    predict: bool = True
 
 
 @dataclass(frozen=True)
@@ -176,123 +119,6 @@ class ConveyorScenario(SampledRun):
 
 
 # -- parsing (uses the tracking scenarios' validation helpers) ----------------------------
-def _location(node, key: str, default: Any = None) -> Location | None:
-    if not node.has(key):
-        if default is None and key in ("start",):
-            node.raw(key)
-        return default
-    value = node.raw(key)
-    if isinstance(value, list):
-        return Location(node.xyz(key, unit="mm"))
-    sub = node.child(value, node.key_path(key), node.value_line(key))
-    sub.check_keys(("position", "axis", "angle_deg"))
-    pos = sub.xyz("position", unit="mm")
-    angle = sub.number("angle_deg", 0.0, unit="deg")
-    axis = sub.xyz("axis", (0.0, 0.0, 1.0))
-    try:
-        return Location.from_axis_angle(pos, axis, angle)
-    except ParameterError as exc:
-        raise sub.error("axis", str(exc)) from None
-
-
-def _frame(node) -> FrameSpec:
-    node.check_keys(("name", "type", "origin", "direction", "scale_mm_per_unit", "upstream",
-                     "arc_point", "downstream", "up_master", "down_master", "window",
-                     "limits"))
-    name = node.string("name", "cnv")
-    t = node.raw("type", "linear")
-    key = t.lower() if isinstance(t, str) else t
-    if isinstance(t, bool) or not isinstance(key, (str, int)) or key not in _TYPES:
-        raise node.error("type", f"must be linear | rotary | rotary_decoupled | 0 | 1 | 2, "
-                                 f"got {t!r}")
-    ftype = _TYPES[key]
-    w = node.section("window")
-    w.check_keys(("upstream", "downstream"))
-    unit = "mm" if ftype == LINEAR else "deg"
-    up = w.number("upstream", unit=unit)
-    down = w.number("downstream", unit=unit)
-    if not up < down:
-        raise w.error("downstream", f"value {down!r} is out of range: must be > upstream "
-                                    f"({up!r}) {unit}")
-    window = Window.single(up, down)
-    limits = FRAME_LIMITS
-    ln = node.optional_section("limits")
-    if ln is not None:
-        ln.check_keys(list(SOFTMC_LIMIT_NAMES))
-        limits = frame_limits(**{
-            f: ln.number(f, getattr(getattr(limits, channel), bound), lo=0.0, lo_open=True)
-            for f, (channel, bound) in SOFTMC_LIMIT_NAMES.items()})
-    if ftype == LINEAR:
-        for k in ("upstream", "arc_point", "downstream", "up_master", "down_master"):
-            if node.has(k):
-                raise node.error(k, "is a rotary frame key (type: rotary); a linear frame "
-                                    "uses origin, direction, scale_mm_per_unit")
-        scale = node.number("scale_mm_per_unit", 1.0, unit="mm per master unit")
-        if scale == 0.0:
-            raise node.error("scale_mm_per_unit", "must not be 0")
-        return FrameSpec(name, ftype, window, limits, _location(node, "origin", Location()),
-                         unit_vector(node, "direction", (1.0, 0.0, 0.0)), scale)
-    for k in ("origin", "direction", "scale_mm_per_unit"):
-        if node.has(k):
-            raise node.error(k, "is a linear frame key; a rotary frame uses upstream, "
-                                "arc_point, downstream, up_master, down_master")
-    upstream = _location(node, "upstream", None)
-    if upstream is None:
-        node.raw("upstream")
-    arc_point = node.xyz("arc_point", unit="mm")
-    downstream = node.xyz("downstream", unit="mm")
-    up_master = node.number("up_master", 0.0)
-    down_master = node.number("down_master")
-    if down_master == up_master:
-        raise node.error("down_master", f"must differ from up_master ({up_master!r})")
-    spec = FrameSpec(name, ftype, window, limits, upstream=upstream, arc_point=arc_point,
-                     downstream=downstream, up_master=up_master, down_master=down_master)
-    try:
-        from ..conveyor import arc_from_points
-
-        arc_from_points(upstream.pos, arc_point, downstream)
-    except ParameterError as exc:
-        raise node.error("arc_point", str(exc)) from None
-    return spec
-
-
-def _master(node) -> MasterSpec:
-    node.check_keys(("start", "speed", "profile", "encoder", "log"))
-    kinds = [k for k in ("speed", "profile", "log") if node.has(k)]
-    if len(kinds) != 1:
-        raise node.error(kinds[1] if len(kinds) > 1 else "speed",
-                         "give exactly one of speed, profile, log")
-    start = node.number("start", 0.0)
-    enc = None
-    en = node.optional_section("encoder")
-    if en is not None:
-        en.check_keys(("counts_per_unit", "modulus", "window"))
-        enc = EncoderSpec(en.number("counts_per_unit", lo=0.0, lo_open=True),
-                          en.number("modulus", 0, lo=0, integer=True),
-                          en.number("window", 16, lo=3, hi=10000, integer=True))
-    if node.has("log"):
-        if enc is None:
-            raise node.error("log", "an encoder log needs the encoder section "
-                                    "(counts_per_unit, modulus)")
-        path = Path(node.string("log"))
-        if not path.is_absolute():
-            path = node.base_dir / path
-        try:
-            logs = read_encoder_log(path)
-        except OSError as exc:
-            raise node.error("log", f"cannot read the encoder log {str(path)!r}: "
-                                    f"{exc.strerror or exc}") from None
-        if len(logs) != 1:
-            raise ConfigError(f"the encoder log must have one source column, found "
-                              f"{len(logs)}", file=str(path), line=1)
-        counts = tuple(next(iter(logs.values())))
-        return MasterSpec(start, 0.0, None, enc, counts, path)
-    if node.has("profile"):
-        prof = node.optional_section("profile")
-        return MasterSpec(start, 0.0, segment_master(prof), enc)
-    return MasterSpec(start, node.number("speed", unit="master units/s"), None, enc)
-
-
 def _items(node, duration_s: float, n_samples: int, frame: FrameSpec,
            robot: str) -> tuple[ItemSpec, ...]:
     node.check_keys(("trigger_times", "radius_offsets_mm", "types", "csv", "log"))
@@ -400,43 +226,6 @@ def _items(node, duration_s: float, n_samples: int, frame: FrameSpec,
     return tuple(out)
 
 
-def _robot(node) -> RobotSpec:
-    node.check_keys(("name", "start", "base", "tool", "slave", "buffer_capacity", "motion",
-                     "track_types"))
-    slave = node.number("slave", 5, integer=True)
-    if slave not in (3, 5):
-        raise node.error("slave", f"value {slave!r} is out of range: must be 3 or 5")
-    ml = MOTION_LIMITS
-    mn = node.optional_section("motion")
-    if mn is not None:
-        mn.check_keys(("vel", "acc", "jerk", "rot_vel", "rot_acc", "rot_jerk"))
-        ml = CartesianLimits(*(Limits(*(mn.number(prefix + k, getattr(lim, k), lo=0.0,
-                                                  lo_open=True) for k in ("vel", "acc", "jerk")))
-                               for prefix, lim in (("", ml.trans), ("rot_", ml.rot))))
-    types = None
-    if node.has("track_types"):
-        types = frozenset(check_number(v, lambda m, line=line, path=path:
-                                       node.fail(m, line, path), lo=0, hi=255,
-                                       integer=True)
-                          for v, line, path in node.list("track_types"))
-        if not types:
-            raise node.error("track_types", "must list at least one item type (leave the key "
-                                            "out to track every type)")
-    return RobotSpec(node.string("name", "robot"), _location(node, "start"),
-                     _location(node, "base", Location()), _location(node, "tool", Location()),
-                     slave, node.number("buffer_capacity", 32, lo=1, hi=100000, integer=True),
-                     ml, types)
-
-
-def _program(node) -> ProgramSpec:
-    if node is None:
-        return ProgramSpec()
-    node.check_keys(("approach_mm", "dwell_s", "place", "predict"))
-    return ProgramSpec(node.number("approach_mm", 50.0, lo=0.0, unit="mm"),
-                       node.number("dwell_s", 0.1, lo=0.0, unit="s"),
-                       _location(node, "place", None), node.boolean("predict", True))
-
-
 def parse_conveyor(root: Section, source: Path | None) -> ConveyorScenario:
     """Validate a conveyor scenario (``root``: the scenario's top-level node)."""
     root.check_keys(("name", "duration_s", "tracker", "conveyor"))
@@ -449,14 +238,14 @@ def parse_conveyor(root: Section, source: Path | None) -> ConveyorScenario:
                                        f"[1...{MAX_SAMPLES}]")
     cn = root.section("conveyor")
     cn.check_keys(("frame", "master", "items", "robot", "program"))
-    frame = _frame(cn.section("frame"))
-    master = _master(cn.section("master"))
+    frame = read_frame(cn.section("frame"))
+    master = read_master(cn.section("master"))
     if master.log is not None and len(master.log) < n + 1:
         raise cn.error("master", f"the encoder log has {len(master.log)} samples, the run "
                                  f"needs {n + 1} (duration {duration:g} s)")
-    robot = _robot(cn.section("robot"))
+    robot = read_robot(cn.section("robot"))
     items = _items(cn.section("items"), duration, n, frame, robot.name)
-    program = _program(cn.optional_section("program"))
+    program = read_program(cn.optional_section("program"))
     return ConveyorScenario(params, float(duration), frame, master, items, robot, program,
                             name, source)
 
@@ -661,7 +450,7 @@ class ConveyorResult:
         return np.array(geo.point(c, z, z, t_ev.dr_mm).here.pos)
 
 
-def _master_fn(m: MasterSpec):
+def master_fn(m: MasterSpec):
     if m.profile is not None:
         from .master import build_profile
 
@@ -693,7 +482,7 @@ def build_conveyor(sc: ConveyorScenario) -> ConveyorSetup:
     """The cell of a validated conveyor scenario, at sample 0 (nothing triggered yet)."""
     T = sc.sample_time_s
     fs, ms = sc.frame, sc.master
-    fn = _master_fn(ms)
+    fn = master_fn(ms)
     per_unit = 1.0
     if ms.encoder is not None:
         cpu = ms.encoder.counts_per_unit
@@ -884,12 +673,3 @@ def write_logs(result: ConveyorResult, prefix: str | Path) -> tuple[Path, Path |
 
 def type_name(t: int) -> str:
     return TYPE_NAMES[t]
-
-
-# -- public readers and helpers (used by controller.simulate.cell) ---------------------------
-read_location = _location
-read_frame = _frame
-read_master = _master
-read_robot = _robot
-read_program = _program
-master_fn = _master_fn

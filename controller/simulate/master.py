@@ -30,7 +30,7 @@ import numpy as np
 from ..tracking import MasterEstimator, MotionState
 
 if TYPE_CHECKING:
-    from .reading import CsvMaster, SegmentMaster
+    from ..cell.reading import CsvMaster, SegmentMaster
     from .scenario import Scenario
 
 __all__ = ["SegmentError", "SegmentProfile", "build_profile", "speed_change_phases",
@@ -207,7 +207,7 @@ def _conditioned_states(scenario: "Scenario") -> tuple[list[MotionState], list[M
     samples through a :class:`MasterConditioner`, warmed up on the master's pre-history so
     that it is valid at t = 0."""
     from ..tracking.conditioning import ConditioningParams, EncoderModel, MasterConditioner
-    from .reading import CsvMaster
+    from ..cell.reading import CsvMaster
 
     spec = scenario.conditioning
     assert spec is not None
@@ -265,7 +265,7 @@ def master_states(scenario: "Scenario") -> tuple[list[MotionState], list[MotionS
 
     Without an ``estimator`` section both lists are the same objects.
     """
-    from .reading import CsvMaster
+    from ..cell.reading import CsvMaster
 
     T = scenario.params.sample_time_s
     n = scenario.n_samples

@@ -127,7 +127,7 @@ from ..tracking import MotionState, TrackerParams
 from ..tracking.conditioning import ConditionerDesign
 from ..yamlmarks import (MarkedList, MarkedMap, Section, check_number, closest, load_marked, read_text)
 from .master import SegmentError, build_profile
-from .reading import (MAX_POSITION_MM, MAX_SAMPLES, CsvMaster, EncoderSpec, SampledRun,
+from ..cell.reading import (MAX_POSITION_MM, MAX_SAMPLES, CsvMaster, EncoderSpec, SampledRun,
                       Segment, SegmentMaster, segment_master, tracker_params)
 
 __all__ = ["ConditioningSpec", "CsvMaster", "EncoderSpec", "Scenario", "Segment", "SegmentMaster", "load_scenario",

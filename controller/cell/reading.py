@@ -1,13 +1,14 @@
 """Readers shared by the scenario files of ``cantrack simulate`` (tracking, conveyor and
-cell scenarios): the tracker parameters, the segment master and the sampled-run base.
+cell scenarios) and by the cell of bus.yml: the tracker parameters, the segment master and
+the sampled-run base.
 
 The files are read as bus.yml is, by :mod:`controller.yamlmarks`: the YAML with its line
 marks (``load_marked``) and each mapping as a :class:`~controller.yamlmarks.Section` (file,
 line and dotted key path; the scenario getters ``number``/``boolean``/``string``/``xyz``/
 ``optional_section``/``check_keys`` with units and open or closed bounds).  Every problem is
 a :class:`controller.errors.ConfigError` naming the file, the line and the key.  Public
-names are used by :mod:`.scenario`, :mod:`.conveyor` and :mod:`.cell`; none of those
-imports another's private names.
+names are used by :mod:`controller.simulate.scenario`, :mod:`.elements` and :mod:`.scenario`;
+none of those imports another's private names.
 """
 
 from __future__ import annotations
@@ -105,6 +106,9 @@ class SampledRun:
     """Sample time and length of a scenario with ``params`` (TrackerParams) and
     ``duration_s`` (shared by the tracking and the conveyor scenarios)."""
 
+    params: TrackerParams        #: declared here, a field of each scenario dataclass
+    duration_s: float            #: [s]
+
     @property
     def sample_time_s(self) -> float:
         return self.params.sample_time_s
@@ -113,7 +117,6 @@ class SampledRun:
     def n_samples(self) -> int:
         """Number of updates N (the trace has N + 1 rows)."""
         return max(1, round(self.duration_s / self.params.sample_time_s))
-
 
 
 _PARAM_FIELDS = {f.name: f for f in dataclasses.fields(TrackerParams)}
@@ -128,7 +131,7 @@ def _param_error(node: Section, exc: ParameterError, fields: Iterable[str]) -> C
     """A core ParameterError located at the value it names (else at the section)."""
     m = _PARAM_MSG.match(str(exc))
     name = m.group(1) if m else None
-    if name in fields and node.has(name):
+    if name is not None and name in fields and node.has(name):
         return node.error(name, str(exc))
     return node.fail(str(exc), node.head, node.path or None)
 
