@@ -55,7 +55,7 @@ import copy
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable, Mapping, Protocol, TypeVar
 
 from ..conveyor import Kinematics, Location, Window
 from ..errors import ParameterError
@@ -68,7 +68,7 @@ from .reading import MAX_SAMPLES, SampledRun, tracker_params
 __all__ = ["GroupSpec", "CellFrameSpec", "FrameChange", "CellRobotSpec", "SensorSpec",
            "CellScenario", "parse_cell", "read_cell_frame", "read_cell_robot",
            "read_frame_changes", "read_kinematics", "read_sensor", "read_names",
-           "required_section", "without_keys"]
+           "required_section", "without_keys", "read_layout"]
 
 
 # -- the scenario ------------------------------------------------------------------------
@@ -162,7 +162,8 @@ def without_keys(node: Section, drop: tuple[str, ...]) -> Section:
     return node.child(m, node.path, node.head)
 
 
-def read_names(node: Section, key: str, known: dict | list, what: str) -> tuple[str, ...]:
+def read_names(node: Section, key: str, known: Mapping[str, object] | list[str],
+               what: str) -> tuple[str, ...]:
     out = []
     for v, line, path in node.list(key):
         if not isinstance(v, str) or v not in known:
@@ -216,7 +217,9 @@ def read_group_frame(node: Section) -> CellFrameSpec:
     return CellFrameSpec(None, (), (), (), window, world, gs, name)
 
 
-def read_cell_frame(node: Section, masters: dict[str, MasterSpec]) -> CellFrameSpec:
+def read_cell_frame(node: Section, masters: Mapping[str, object]) -> CellFrameSpec:
+    """A frame of a cell: a moving frame on the named ``masters`` (one per DOF) or a group
+    frame (a robot's TCP as master)."""
     if node.has("group"):
         return read_group_frame(node)
     extra = ("masters", "directions", "scales_mm_per_unit", "world")
@@ -280,7 +283,7 @@ def read_cell_frame(node: Section, masters: dict[str, MasterSpec]) -> CellFrameS
     return CellFrameSpec(spec, names, tuple(dirs), tuple(scales), window, world)
 
 
-def read_frame_changes(node: Section, frames: dict[str, CellFrameSpec], duration: float
+def read_frame_changes(node: Section, frames: Mapping[str, CellFrameSpec], duration: float
              ) -> tuple[FrameChange, ...]:
     out = []
     prev = -math.inf
@@ -299,11 +302,16 @@ def read_frame_changes(node: Section, frames: dict[str, CellFrameSpec], duration
     return tuple(out)
 
 
-def read_cell_robot(node: Section, frames: dict[str, CellFrameSpec], duration: float
-                ) -> CellRobotSpec:
-    extra = ("kinematics", "track_types", "program", "master_frame")
-    rs = read_robot(without_keys(node, extra))
-    kin = read_kinematics(node.optional_section("kinematics")) or Kinematics()
+def read_cell_robot(node: Section, frames: Mapping[str, CellFrameSpec], duration: float,
+                    *, kinematics: Kinematics | None = None, extra: tuple[str, ...] = ()
+                    ) -> CellRobotSpec:
+    """A robot of a cell (``duration`` [s]: the bound of its MasterFrame times).
+    ``kinematics``: the robot's type and dimension when the caller knows them (bus.yml: from
+    its drives), else read from the ``kinematics`` key; ``extra``: keys the caller reads."""
+    skip = ("kinematics", "track_types", "program", "master_frame") + extra
+    rs = read_robot(without_keys(node, skip))
+    kin = kinematics if kinematics is not None else (
+        read_kinematics(node.optional_section("kinematics")) or Kinematics())
     types: list[tuple[str, frozenset[int]]] = []
     tn = node.optional_section("track_types")
     if tn is not None:
@@ -333,7 +341,7 @@ def read_cell_robot(node: Section, frames: dict[str, CellFrameSpec], duration: f
     return CellRobotSpec(rs, kin, tuple(types), pframe, prog, changes)
 
 
-def read_sensor(node: Section, frames: dict[str, CellFrameSpec], robots: list[str],
+def read_sensor(node: Section, frames: Mapping[str, CellFrameSpec], robots: list[str],
             duration: float) -> SensorSpec:
     node.check_keys(("frame", "robots", "trigger_times", "types", "radius_offsets_mm",
                      "offset"))
@@ -390,26 +398,45 @@ def parse_cell(root: Section, source: Path | None) -> CellScenario:
         masters[str(key)] = read_master(sec)
     if not masters:
         raise cn.error("masters", "must define at least one master")
+    frames, robots, sensors = read_layout(
+        cn, masters, duration, lambda node, frames: read_cell_robot(node, frames, duration))
+    return CellScenario(params, float(duration), masters, tuple(frames.values()),
+                        robots, sensors, name, source)
+
+
+class _Named(Protocol):
+    @property
+    def name(self) -> str: ...
+
+
+R = TypeVar("R", bound=_Named)
+
+
+def read_layout(cn: Section, masters: Mapping[str, object], duration: float,
+                robot: Callable[[Section, Mapping[str, CellFrameSpec]], R]
+                ) -> tuple[dict[str, CellFrameSpec], tuple[R, ...], tuple[SensorSpec, ...]]:
+    """The ``frames``, ``robots`` and ``sensors`` of a cell section ``cn`` (the masters
+    named by ``masters``; ``robot`` reads one robot; ``duration`` [s]: the bound of every
+    time), with the names checked (unique, every reference known)."""
     frames: dict[str, CellFrameSpec] = {}
     for v, line, path in cn.list("frames"):
-        fs = read_cell_frame(root.child(v, path, line), masters)
+        fs = read_cell_frame(cn.child(v, path, line), masters)
         if fs.name in frames:
-            raise root.fail(f"frame name {fs.name!r} is used twice", line, path)
+            raise cn.fail(f"frame name {fs.name!r} is used twice", line, path)
         frames[fs.name] = fs
-    robots: list[CellRobotSpec] = []
+    robots: list[R] = []
     for v, line, path in cn.list("robots"):
-        rs = read_cell_robot(root.child(v, path, line), frames, duration)
+        rs = robot(cn.child(v, path, line), frames)
         if rs.name in [r.name for r in robots]:
-            raise root.fail(f"robot name {rs.name!r} is used twice", line, path)
+            raise cn.fail(f"robot name {rs.name!r} is used twice", line, path)
         robots.append(rs)
     if not frames or not robots:
         raise cn.error("frames" if not frames else "robots", "must list at least one")
+    names = [r.name for r in robots]
     for fs in frames.values():
-        if fs.group is not None and fs.group.robot not in [r.name for r in robots]:
-            raise root.fail(f"unknown robot {fs.group.robot!r} (known: "
-                            f"{', '.join(repr(r.name) for r in robots)})", fs.group.line,
-                            fs.group.path)
-    sensors = tuple(read_sensor(root.child(v, path, line), frames, [r.name for r in robots],
-                            duration) for v, line, path in cn.list("sensors"))
-    return CellScenario(params, float(duration), masters, tuple(frames.values()),
-                        tuple(robots), sensors, name, source)
+        if fs.group is not None and fs.group.robot not in names:
+            raise cn.fail(f"unknown robot {fs.group.robot!r} (known: "
+                          f"{', '.join(map(repr, names))})", fs.group.line, fs.group.path)
+    sensors = tuple(read_sensor(cn.child(v, path, line), frames, names, duration)
+                    for v, line, path in cn.list("sensors"))
+    return frames, tuple(robots), sensors

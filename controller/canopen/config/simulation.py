@@ -5,8 +5,8 @@ Device units (counts) for the drives, mm and s for the belt.  Every key is optio
     .simulation:
       boot_delay_s: 0.005          # power-on / NMT reset -> boot-up message [s]
       <encoder slave>:             # a slave whose EDS is a CiA 406 encoder
-        counts_per_mm: 40.96       # default: .tracking.conveyor.counts_per_mm
-        sign: 1                    # default: .tracking.conveyor.sign
+        counts_per_mm: 40.96       # default: .tracking.conveyor.counts_per_mm (a cell: its
+        sign: 1                    #   encoder of this node); default: .tracking.conveyor.sign
         profile: [[0, 300]]        # belt speed [t_s, v_mm_s] points, piecewise linear
         initial_counts: 0          # 6004h at t = 0 (before the wrap at 6002h)
         noise_counts: 0            # standard deviation of Gaussian noise [counts]
@@ -107,7 +107,7 @@ def parse_simulation(s: Section, cfg: ControllerConfig) -> SimulationConfig:
         d = s.section(name)
         prof = odm.profile(cfg.ods[name])
         if prof == odm.PROFILE_ENCODER:
-            devices[name] = _encoder(d, cfg)
+            devices[name] = _encoder(d, cfg, str(name))
         elif prof == odm.PROFILE_DRIVE:
             devices[name] = _drive(d)
         else:
@@ -121,8 +121,11 @@ MAX_BELT_SPEED = 10_000.0
 MAX_PROFILE_S = 1e9
 
 
-def _encoder(s: Section, cfg: ControllerConfig) -> EncoderParams:
-    conv = cfg.tracking.conveyor if cfg.tracking is not None else None
+def _encoder(s: Section, cfg: ControllerConfig, node: str) -> EncoderParams:
+    encoders = cfg.tracking.encoders if cfg.tracking is not None else ()
+    # the encoder of this node (a cell has several), else the first one's scale
+    conv = next((e for e in encoders if e.node == node),
+                encoders[0] if encoders else None)
     profile = []
     for item, line, path in s.list("profile", [[0.0, 300.0]]):
         if not (isinstance(item, list) and len(item) == 2 and all(

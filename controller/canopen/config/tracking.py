@@ -4,6 +4,9 @@ Units: mm, mm/s, mm/s^2, mm/s^3, deg, s (counts only as ``counts_per_mm``/``coun
 scales).  Keys (``*`` = required)::
 
     .tracking:
+      cell:                          # a work cell (several encoders, frames, robots: see
+                                     #   controller.canopen.config.cell) instead of
+                                     #   conveyor, kinematics, window and items
       conveyor:*                     # the master axis (a CiA 406 encoder)
         node:* encoder               # slave name
         index: 0x6004                # object with the position, mapped in a TPDO that is
@@ -106,6 +109,7 @@ from .reactions import Reactions, parse_reactions
 
 if TYPE_CHECKING:
     from .bus import ControllerConfig
+    from .cell import CellConfig
 
 Vec3 = tuple[float, float, float]
 
@@ -182,6 +186,8 @@ class AxisConfig:
     scale: AxisScale
     motion: AxisMotionConfig = AxisMotionConfig()
     homing: AxisHomingConfig | None = None
+    #: the robot the drive belongs to in a cell (``.tracking.cell.robots``; "" otherwise)
+    robot: str = ""
 
 
 @dataclass(frozen=True, slots=True)
@@ -211,23 +217,57 @@ class TrackingConfig:
     reactions: Reactions = field(default_factory=Reactions)
     #: quick stop after this many SYNC deadlines missed in a row (0: never)
     max_missed_in_row: int = 25
+    #: a work cell of several encoders, frames and robots (``.tracking.cell``, :mod:`.cell`);
+    #: then ``conveyor`` is its first encoder and ``axes`` every robot's drives
+    cell: CellConfig | None = None
 
     @property
     def drive_nodes(self) -> tuple[str, ...]:
         return tuple(a.node for a in self.axes)
 
+    @property
+    def encoders(self) -> tuple[ConveyorConfig, ...]:
+        """Every master encoder: the cell's, else the conveyor's."""
+        return tuple(self.cell.encoders.values()) if self.cell is not None else (self.conveyor,)
+
 
 def parse_tracking(s: Section, cfg: ControllerConfig) -> TrackingConfig:
-    conveyor = _conveyor(s.section("conveyor"), cfg)
+    if s.has("cell"):
+        return _parse_cell(s, cfg)
+    conveyor = read_encoder(s.section("conveyor"), cfg)
     kin = s.section("kinematics")
     kind = kin.str("type", "cartesian", choices=list(KINEMATICS))
-    axes = _axes(kin.section("axes"), cfg, conveyor)
+    axes = read_axes(kin.section("axes"), cfg)
     kin.finish()
     try:
         from ...kinematics import create
         create(kind, [a.name for a in axes])
     except ParameterError as exc:
         raise kin.error("axes", str(exc)) from None
+    return _parse_common(s, cfg, conveyor, kind, axes)
+
+
+#: the keys of one belt and one robot, which a cell gives in ``.tracking.cell``
+SINGLE_FRAME_KEYS = ("conveyor", "kinematics", "window", "items")
+
+
+def _parse_cell(s: Section, cfg: ControllerConfig) -> TrackingConfig:
+    """``.tracking`` with a ``cell``: ``conveyor`` is the cell's first encoder, ``axes``
+    every robot's drives (robot by robot), ``kinematics`` the first robot's type."""
+    from .cell import parse_cell_config
+
+    for k in SINGLE_FRAME_KEYS:
+        if s.has(k):
+            raise s.error(k, "is a key of one belt and one robot: a cell gives its encoders, "
+                             "frames and robots in .tracking.cell", at_value=False)
+    cell = parse_cell_config(s.section("cell"), cfg)
+    return _parse_common(s, cfg, next(iter(cell.encoders.values())),
+                         cell.robots[0].kinematics, cell.axes, cell)
+
+
+def _parse_common(s: Section, cfg: ControllerConfig, conveyor: ConveyorConfig, kind: str,
+                  axes: tuple[AxisConfig, ...], cell: CellConfig | None = None
+                  ) -> TrackingConfig:
     tracker = _tracker(s.section("tracker", {}), cfg.period_s)
     w = s.section("window", {})
     start = w.float("start", -math.inf)
@@ -264,7 +304,7 @@ def parse_tracking(s: Section, cfg: ControllerConfig) -> TrackingConfig:
     reactions = parse_reactions(s.section("reactions", {}))
     s.finish()
     return TrackingConfig(conveyor, kind, axes, tracker, (start, end), compute_at, timeouts,
-                          delay, track_types, reactions, max_missed_in_row)
+                          delay, track_types, reactions, max_missed_in_row, cell)
 
 
 def _slave_ref(s: Section, key: str, cfg: ControllerConfig, profile: int, what: str) -> str:
@@ -279,7 +319,8 @@ def _slave_ref(s: Section, key: str, cfg: ControllerConfig, profile: int, what: 
     return name
 
 
-def _conveyor(s: Section, cfg: ControllerConfig) -> ConveyorConfig:
+def read_encoder(s: Section, cfg: ControllerConfig) -> ConveyorConfig:
+    """A master axis: a CiA 406 encoder node of the bus (``.tracking.conveyor``'s keys)."""
     from .concise import effective_pdos
     node = _slave_ref(s, "node", cfg, odm.PROFILE_ENCODER, "encoder")
     index = s.int("index", 0x6004, min=0x1000, max=0xFFFF)
@@ -340,7 +381,8 @@ def _configured_value(cfg: ControllerConfig, node: str, index: int, sub: int) ->
     return int(value or 0)
 
 
-def _axes(s: Section, cfg: ControllerConfig, conveyor: ConveyorConfig) -> tuple[AxisConfig, ...]:
+def read_axes(s: Section, cfg: ControllerConfig, robot: str = "") -> tuple[AxisConfig, ...]:
+    """The drives of a robot (``.tracking.kinematics.axes``; ``robot``: its name in a cell)."""
     from .concise import effective_pdos
     pdos = effective_pdos(cfg)
     out = []
@@ -370,7 +412,7 @@ def _axes(s: Section, cfg: ControllerConfig, conveyor: ConveyorConfig) -> tuple[
         if tp is None or tp.transmission != 1:
             raise a.error("node", f"'{node}' needs an enabled TPDO with transmission 1 "
                                   "mapping 6041h and 6064h")
-        out.append(AxisConfig(str(name), node, scale, motion, homing))
+        out.append(AxisConfig(str(name), node, scale, motion, homing, robot))
     if not out:
         raise s.error(next(iter(s.data), "axes"), "at least one axis is required")
     return tuple(out)

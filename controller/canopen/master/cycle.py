@@ -40,7 +40,7 @@ from dataclasses import dataclass, field
 from enum import Enum
 from typing import TYPE_CHECKING
 
-from ...errors import CanError
+from ...errors import CanError, ConfigError
 from ...kinematics import CountsConverter
 from ...kinematics import create as create_kinematics
 from ...tracking import MasterEstimate, MotionState, Tracker, TrackError, TrackState
@@ -167,6 +167,14 @@ class Controller:
                  enforce_bus_load: bool = True) -> None:
         if cfg.tracking is None:
             raise CanError(f"{cfg.file}: no .tracking section: nothing to control")
+        if cfg.tracking.cell is not None:
+            # one kinematics over all axes, one master view: the cycle runs one belt and one
+            # robot; a cell's frames and robots are read and checked (config.cell) but have
+            # no setpoint source on the bus yet
+            raise ConfigError("a cell (several encoders, frames, robots) is not run by the "
+                              "bus controller yet: run it offline with cantrack simulate "
+                              "(the same frames, robots and sensors in a cell scenario)",
+                              file=cfg.file, key=".tracking.cell")
         self.cfg = cfg
         self.tc = cfg.tracking
         #: frames checked before decoding, bad ones counted per COB-ID (:mod:`.frames`);
