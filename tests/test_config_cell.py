@@ -155,3 +155,12 @@ def test_the_bus_controller_refuses_a_cell_clearly():
     with pytest.raises(ConfigError, match="cell .* not run by the bus controller") as info:
         Controller(cfg, transport=None)  # type: ignore[arg-type]
     assert info.value.key == ".tracking.cell" and info.value.file == cfg.file
+
+
+def test_a_demo_section_beside_a_cell_is_refused_at_its_key(tmp_path):
+    text = TEXT + "\n.demo:\n  items: 2\n"
+    path = tmp_path / "bus.yml"
+    path.write_text(text)
+    with pytest.raises(ConfigError, match="one belt and one robot") as info:
+        parse_config(text, str(path), base_dir=BUS.parent)
+    assert info.value.key == ".demo" and info.value.line == _lines(text, ".demo:")[0]

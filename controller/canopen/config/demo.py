@@ -67,6 +67,12 @@ def _types(s: Section) -> tuple[int, ...]:
 
 
 def parse_demo(s: Section, cfg: ControllerConfig, tracking: TrackingConfig | None) -> DemoConfig:
+    if tracking is not None and tracking.cell is not None:
+        # the photo-eye items and the pick-and-place of one belt and one robot
+        raise ConfigError("is the pick-and-place demo of one belt and one robot: a cell's "
+                          "items come from .tracking.cell.sensors, and a cell is not run on "
+                          "the bus yet (run its scenario with cantrack simulate)",
+                          file=s.file, line=s.head, key=s.path)
     d = DemoConfig()
     pick = s.section("pick", {})
     place = s.section("place", {})
