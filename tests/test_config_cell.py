@@ -164,3 +164,41 @@ def test_a_demo_section_beside_a_cell_is_refused_at_its_key(tmp_path):
     with pytest.raises(ConfigError, match="one belt and one robot") as info:
         parse_config(text, str(path), base_dir=BUS.parent)
     assert info.value.key == ".demo" and info.value.line == _lines(text, ".demo:")[0]
+
+
+def test_each_cell_encoder_is_its_own_master_input_on_the_stepped_bus():
+    """Gap 1 of the cell on the bus, its I/O: one MasterInput per cell encoder on one
+    transport, each decoding its own node's TPDO (the simulated belts run 200 and 150 mm/s)
+    into its own estimate."""
+    from controller.canopen.master.masterio import MasterInput
+    from controller.canopen.slave.world import SimWorld
+
+    cfg = load_config(BUS)
+    cell = cfg.tracking.cell
+    period_ns = cfg.period_ns
+    with SimWorld(cfg) as w:
+        tr = w.transport
+        inputs = {name: MasterInput(cfg, tr, encoder=enc)
+                  for name, enc in cell.encoders.items()}
+        booted: set[int] = set()
+        for enc in cell.encoders.values():
+            node_id = cfg.slaves[enc.node].node_id
+            tr.subscribe(0x700 + node_id, lambda cid, data, t: booted.add(cid - 0x700))
+        ids = {cfg.slaves[e.node].node_id for e in cell.encoders.values()}
+        tr.run_until(tr.clock.now_ns() + 10**9, lambda: ids <= booted)
+        assert ids <= booted, booted
+        tr.send(0x000, bytes([0x01, 0x00]))           # NMT start all
+        t = tr.clock.now_ns()
+        for k in range(60):
+            for m in inputs.values():
+                m.cycle = k
+            tr.send(0x080, b"")                       # SYNC: the encoders sample and send
+            t += period_ns
+            tr.run_until(t)                           # one period of stepped time
+            assert all(m.fresh(k) for m in inputs.values()), k
+            est = {n: m.update(k)[1] for n, m in inputs.items()}
+    assert all(m.ready for m in inputs.values())
+    # each its own belt: 200 and 150 mm/s, to the quantisation of 1/40.96 mm per count
+    assert est["belt_a"].vel == pytest.approx(200.0, abs=1.0)
+    assert est["belt_b"].vel == pytest.approx(150.0, abs=1.0)
+    assert inputs["belt_a"].label != inputs["belt_b"].label

@@ -38,12 +38,20 @@ from ..protocol.pdo import PdoCodec
 
 if TYPE_CHECKING:
     from ..config import ControllerConfig
+    from ..config.tracking import ConveyorConfig
 
 
 class MasterInput:
+    """One master encoder's input: its TPDO, counts -> mm, the estimator or conditioner.
+
+    ``encoder``: which one (a cell has several, ``.tracking.cell.encoders``; one input each,
+    on the same transport); default ``.tracking.conveyor``."""
+
     def __init__(self, cfg: ControllerConfig, transport: Transport,
-                 hygiene: FrameHygiene | None = None) -> None:
-        c = cfg.tracking.conveyor
+                 hygiene: FrameHygiene | None = None,
+                 encoder: ConveyorConfig | None = None) -> None:
+        assert cfg.tracking is not None  # a controller runs only with a .tracking section
+        c = encoder if encoder is not None else cfg.tracking.conveyor
         self.conf = c
         self.label = cfg.label(c.node)
         pdo = effective_pdos(cfg)[c.node].find("tpdo", [(c.index, c.sub_index)])
