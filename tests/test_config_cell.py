@@ -202,3 +202,20 @@ def test_each_cell_encoder_is_its_own_master_input_on_the_stepped_bus():
     assert est["belt_a"].vel == pytest.approx(200.0, abs=1.0)
     assert est["belt_b"].vel == pytest.approx(150.0, abs=1.0)
     assert inputs["belt_a"].label != inputs["belt_b"].label
+
+
+def test_each_robot_has_its_own_kinematics_over_its_own_drives():
+    """Gap 2 of the cell on the bus: per robot a kinematics over its axes (both named x, y,
+    z) and a counts converter for its drives; each robot's start pose in counts is where
+    .simulation puts its drives (the example is consistent)."""
+    from controller.tracking import MotionState
+
+    cfg = load_config(BUS)
+    for robot in cfg.tracking.cell.robots:
+        joints = robot.machine().joints(MotionState.at(*robot.spec.robot.start.pos))
+        counts = robot.counts().to_counts(joints)
+        assert counts == tuple(cfg.simulation.devices[a.node].initial_counts
+                               for a in robot.axes), robot.name
+    r1, r2 = cfg.tracking.cell.robots
+    assert r1.machine().joints(MotionState.at(1.0, 2.0, 3.0)) == (1.0, 2.0, 3.0)
+    assert r2.counts().to_counts((1.0, 2.0, 3.0)) == (10000, 20000, 30000)

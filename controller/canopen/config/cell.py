@@ -53,7 +53,8 @@ from ...cell.scenario import (CellFrameSpec, CellRobotSpec, SensorSpec, read_cel
                               read_layout)
 from ...conveyor import Kinematics, RobotType
 from ...errors import ParameterError
-from ...kinematics import KINEMATICS, create
+from ...kinematics import KINEMATICS, CountsConverter, create
+from ...kinematics import Kinematics as MachineKinematics
 from ...yamlmarks import Section
 from .tracking import AxisConfig, ConveyorConfig, read_axes, read_encoder
 
@@ -75,6 +76,14 @@ class CellRobotConfig:
     @property
     def name(self) -> str:
         return self.spec.name
+
+    def machine(self) -> MachineKinematics:
+        """This robot's own kinematics over its own axes (tool pose [mm, deg] <-> joints)."""
+        return create(self.kinematics, [a.name for a in self.axes])
+
+    def counts(self) -> CountsConverter:
+        """Joints [mm | deg] <-> counts of this robot's drives, in :attr:`axes` order."""
+        return CountsConverter([a.scale for a in self.axes])
 
 
 @dataclass(frozen=True)
