@@ -2,12 +2,16 @@
 
 One command (one VM boot for the whole module; natively where the kernel has vcan) runs this
 file as a script (:func:`orchestrate`), with ``examples/bus/vcan.yml`` (encoder node 10,
-drives x 11 and y 12, SYNC 100 ms, counter 1..10, heartbeats 200 ms x 4):
+drives x 11 and y 12, SYNC 100 ms, counter 1..10, heartbeats 200 ms x 4) - its supervision
+windows stretched by ``w`` = :func:`controller.testing.speed.window_factor` of the host's
+measured slowness (``CANTRACK_SPEED_FACTOR``, from the harness;
+:mod:`controller.testing.stretch`; 1 on an idle machine), so that a busy machine does not
+lose a heartbeat that merely came late:
 
 1. ``candump -L vcan0`` records the bus;
 2. two device processes: ``sim-devices --only encoder x`` and ``sim-devices --only y``, each
    with ``--ready-file``;
-3. once both are ready, ``cantrack run --duration 10 --engage-at 1 --disengage-at 3
+3. once both are ready, ``cantrack run --duration 7+3w --engage-at 1 --disengage-at 3
    --report run.json``: boot, enable, track the belt, de-sync;
 4. at the 70th SYNC the orchestrator kills the y process (SIGKILL): the controller must detect
    the heartbeat time-out and quick-stop the other drive (controlword 0002h) - on the bus and
@@ -41,7 +45,8 @@ SYNC_PERIOD_S = 0.1
 SYNC_OVERFLOW = 10
 ENCODER, X, Y = 10, 11, 12
 KILL_AT_SYNC = 70
-DURATION_S = 10.0
+#: the run's length after the kill [s] (x w): time to see the heartbeat time-out (0.8 s x w)
+AFTER_KILL_S = 3.0
 EXIT_REACTION = 3
 #: a reaction happened and a drive's stop could not be confirmed (y is gone)
 EXIT_UNCONFIRMED = 4
@@ -61,8 +66,14 @@ def orchestrate(out: Path, channel: str) -> int:
     import can
 
     from controller.testing.candump import CandumpCapture
+    from controller.testing.speed import speed_factor, window_factor
+    from controller.testing.stretch import stretch_bus_config
 
     out.mkdir(parents=True, exist_ok=True)
+    # (the windows' factor from the harness's measurement on the host, CANTRACK_SPEED_FACTOR)
+    f = window_factor()
+    config = stretch_bus_config(CONFIG, out / "vcan.yml", f)
+    duration_s = KILL_AT_SYNC * SYNC_PERIOD_S + AFTER_KILL_S * f
     t0 = time.monotonic()
     marks: dict[str, float] = {}
 
@@ -70,36 +81,39 @@ def orchestrate(out: Path, channel: str) -> int:
         marks[name] = round(time.monotonic() - t0, 3)
 
     bus_args = ["-i", "socketcan", "-c", channel]
-    result: dict = {"ok": False}
+    result: dict = {"ok": False, "speed_factor": speed_factor(), "window_factor": f,
+                    "duration_s": duration_s}
     cap = CandumpCapture(channel, out / "bus.log").start()
     mark("candump")
     logs = {n: open(out / f"{n}.out", "wb") for n in ("sim_ex", "sim_y", "run")}  # noqa: SIM115
-    sim_ex = subprocess.Popen(CANTRACK + ["sim-devices", str(CONFIG), *bus_args, "-q",
+    sim_ex = subprocess.Popen(CANTRACK + ["sim-devices", str(config), *bus_args, "-q",
                                           "--only", "encoder", "x",
                                           "--ready-file", str(out / "ready_ex.json")],
                               stdout=logs["sim_ex"], stderr=subprocess.STDOUT)
-    sim_y = subprocess.Popen(CANTRACK + ["sim-devices", str(CONFIG), *bus_args, "-q",
+    sim_y = subprocess.Popen(CANTRACK + ["sim-devices", str(config), *bus_args, "-q",
                                          "--only", "y", "--ready-file", str(out / "ready_y.json")],
                              stdout=logs["sim_y"], stderr=subprocess.STDOUT)
     run = None
-    watch = can.Bus(interface="socketcan", channel=channel, receive_own_messages=False)
+    # (the kernel filters: only the SYNCs reach this process, a busy VM has no CPU to spare)
+    watch = can.Bus(interface="socketcan", channel=channel, receive_own_messages=False,
+                    can_filters=[{"can_id": 0x80, "can_mask": 0x7FF}])
     try:
         _wait_file(out / "ready_ex.json", [sim_ex, sim_y], 60)
         _wait_file(out / "ready_y.json", [sim_ex, sim_y], 60)
         mark("devices_ready")
-        run = subprocess.Popen(CANTRACK + ["run", str(CONFIG), *bus_args, "-q",
-                                           "--duration", str(DURATION_S), "--engage-at", "1",
+        run = subprocess.Popen(CANTRACK + ["run", str(config), *bus_args, "-q",
+                                           "--duration", f"{duration_s:.1f}", "--engage-at", "1",
                                            "--disengage-at", "3",
                                            "--report", str(out / "run.json")],
                                stdout=logs["run"], stderr=subprocess.STDOUT)
         syncs = 0
-        t_end = time.monotonic() + 120
+        t_end = time.monotonic() + scaled(120)
         while syncs < KILL_AT_SYNC:
             if run.poll() is not None:
                 raise RuntimeError(f"cantrack run exited with {run.returncode} after "
                                    f"{syncs} SYNC")
             if time.monotonic() > t_end:
-                raise RuntimeError(f"only {syncs} SYNC within 120 s")
+                raise RuntimeError(f"only {syncs} SYNC within {scaled(120):.0f} s")
             msg = watch.recv(0.5)
             if msg is not None and msg.arbitration_id == 0x80:
                 syncs += 1
@@ -138,10 +152,15 @@ def orchestrate(out: Path, channel: str) -> int:
 
 class Run:
     def __init__(self, out: Path, frames):
+        from controller.canopen.config import load_config
+
         self.out = out
         self.result = json.loads((out / "result.json").read_text())
         self.report = json.loads((out / "run.json").read_text())
         self.frames = frames
+        #: the factor the windows were stretched by (from the host's slowness), the config
+        self.factor = self.result["window_factor"]
+        self.cfg = load_config(out / "vcan.yml")
 
 
 def _tail(path: Path) -> str:
@@ -262,10 +281,14 @@ def test_pdo_order_per_sync(session):
     # one TPDO per device per SYNC (a late one is counted in the next cycle)
     counts = {cob: sum(c.count(cob) for c in window) for cob in (enc, x, y)}
     assert all(abs(v - n) <= 2 for v in counts.values()), (counts, n)
-    # encoder before x: one process answers the SYNC with both, in that order
+    # encoder before x: one process answers the SYNC with both, in that order (on a busy
+    # machine a late pair leaves its cycle without and the next with two: fewer clean
+    # cycles, seen 56 % at a measured slowness of 9)
     both = [c for c in window if c.count(enc) == 1 and c.count(x) == 1]
     in_order = sum(1 for c in both if c.index(enc) < c.index(x))
-    assert len(both) >= 0.8 * n and in_order >= 0.9 * len(both), (in_order, len(both), window)
+    clean = 0.8 if session.factor == 1.0 else 0.4
+    assert len(both) >= clean * n and in_order >= 0.9 * len(both), (in_order, len(both),
+                                                                      window)
     # the setpoints after all three inputs, unless the controller counted the cycle as late
     complete_first = sum(1 for c in window
                          if all(cob in c[:c.index(rx)] for cob in (enc, x, y)))
@@ -316,14 +339,18 @@ def test_heartbeat_timeout_reaction_on_bus_and_report(session):
     lost = [e for e in rep["events"] if e["kind"] == "heartbeat_lost"]
     assert [e["node"] for e in lost] == [Y], rep["events"]
     assert lost[0]["reaction"] == "quick stop of all drives"
-    assert rep["heartbeat_timeouts_ms"]["node 12 (y)"] == 800
+    # 4 x 200 ms on an idle machine, x w (the window factor) on a busy one
+    y = session.cfg.slaves["y"]
+    assert y.heartbeat_producer_ms == 200 and session.factor >= 1.0
+    assert rep["heartbeat_timeouts_ms"]["node 12 (y)"] == pytest.approx(
+        800 * session.factor, abs=1.0) == 200 * y.hb_multiplier(session.cfg.options)
     # the gap in y's heartbeats, then the quick stop controlword 0002h to x on the bus
     hb_y = [f.time_s for f in _of(fr, Kind.HEARTBEAT) if f.node_id == Y]
     last_y = hb_y[-1]
     rpdo_x = [f for f in _of(fr, Kind.PDO) if f.can_id == 0x20B]
     qs = [f for f in rpdo_x if int.from_bytes(f.data[:2], "little") == 0x0002]
     assert qs, "quick stop controlword to x"
-    assert qs[0].time_s > last_y + 0.5, (qs[0].time_s, last_y)
+    assert qs[0].time_s > last_y + 0.5 * session.factor, (qs[0].time_s, last_y)
     before = [f for f in rpdo_x if f.time_s < last_y]
     assert all(int.from_bytes(f.data[:2], "little") != 0x0002 for f in before)
     # x reacts: it leaves OPERATION ENABLED (quick stop active / switch on disabled)
@@ -422,11 +449,17 @@ sys.exit(rc)
 
 def test_run_sigterm_while_tracking_disables_and_reports(tmp_path):
     """SIGTERM while tracking (devices in a thread of the same process, virtual bus): the
-    drives are disabled (phase stopped, no reaction), the report written, exit code 0."""
+    drives are disabled (phase stopped, no reaction), the report written, exit code 0.  (The
+    supervision windows stretched by the machine's measured slowness: on a busy machine the
+    device thread's heartbeats come late.)"""
+    from controller.testing.speed import window_factor
+    from controller.testing.stretch import stretch_bus_config
+
+    config = stretch_bus_config(CONFIG, tmp_path / "vcan.yml", window_factor())
     report = tmp_path / "run.json"
     log = open(tmp_path / "run.out", "wb")  # noqa: SIM115
     cue = tmp_path / "30-syncs"
-    p = subprocess.Popen([sys.executable, "-c", _IN_ONE_PROCESS, str(CONFIG), str(report),
+    p = subprocess.Popen([sys.executable, "-c", _IN_ONE_PROCESS, str(config), str(report),
                           str(cue)], stdout=log, stderr=subprocess.STDOUT, cwd=ROOT)
     try:
         _wait_file(cue, [p], 120)

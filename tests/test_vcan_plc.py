@@ -12,6 +12,8 @@ as a script (:func:`orchestrate`):
 1. ``candump -L vcan0`` records the bus; ``sim-devices`` (encoder, x, y) and canopend 32;
 2. ``cantrack run`` with ``examples/bus/vcan.yml`` plus a ``.plc`` section (commander 32,
    consumer time 3 s, reaction ``desync``), ``--engage-at`` not given: the PLC engages;
+   every supervision window (the heartbeat time-outs, the gateways' SDO client time-out of
+   500 ms) stretched by the host's measured slowness (:mod:`controller.testing.stretch`);
 3. cocomm through canopend 32: 2011h until 7, 1008h (segmented), engage 2005h = 5, a value
    refused (06090030h), COB-ID writes (restricted 06090030h, a drive's RPDO 08000000h), a
    configuration object (08000020h), NMT pre-operational (08000022h), start again; the
@@ -43,17 +45,27 @@ MASTER, PLC, OTHER = 1, 32, 33
 CANTRACK = [sys.executable, "-m", "controller.cli"]
 
 
-def plc_yml(out: Path) -> Path:
+#: the PLC's heartbeat [ms] and the controller's time-out of it on an idle machine [ms]
+PLC_HEARTBEAT_MS, COMMANDER_TIMEOUT_MS = 100, 3000
+#: the heartbeat multiplier on an idle machine (the slaves' and the drives' time-outs 3 s:
+#: this tier is about the contract, not the timing; x the window factor on a busy one)
+HEARTBEAT_MULTIPLIER = 15.0
+#: canopend's SDO client time-out (its gateway's default) on an idle machine [ms]
+SDO_TIMEOUT_MS = 500
+
+
+def plc_yml(out: Path, factor: float) -> Path:
+    """vcan.yml plus the .plc section, its windows stretched by ``factor``."""
+    from controller.testing.stretch import stretch_bus_config
+
     text = VCAN_YML.read_text().replace("../../eds/", f"{ROOT / 'eds'}/")
-    # (heartbeat time-outs of 3 s: the VM runs at 0.1-0.2x real time on a loaded machine;
-    #  this tier is about the contract, not the timing)
     assert "heartbeat_multiplier: 4.0" in text
-    text = text.replace("heartbeat_multiplier: 4.0", "heartbeat_multiplier: 15.0")
-    text += (f"\n.plc:\n  commander: {PLC}\n  commander_heartbeat_ms: 3000\n"
+    text = text.replace("heartbeat_multiplier: 4.0", f"heartbeat_multiplier: {HEARTBEAT_MULTIPLIER}")
+    text += (f"\n.plc:\n  commander: {PLC}\n  commander_heartbeat_ms: {COMMANDER_TIMEOUT_MS}\n"
              "  on_commander_lost: desync\n")
-    p = out / "plc.yml"
+    p = out / "plc-idle.yml"
     p.write_text(text)
-    return p
+    return stretch_bus_config(p, out / "plc.yml", factor)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -76,7 +88,9 @@ class Gateway:
         self.done: list[dict] = []
 
     def ready(self, timeout_s: float = 30.0) -> None:
-        t_end = time.monotonic() + timeout_s
+        from controller.testing.speed import scaled
+
+        t_end = time.monotonic() + scaled(timeout_s)
         while not self.sock.exists():
             if self.proc.poll() is not None or time.monotonic() > t_end:
                 raise RuntimeError(f"canopend: no command socket {self.sock}")
@@ -97,6 +111,9 @@ class Gateway:
         return res
 
     def until(self, command: str, value: str, timeout_s: float, tag: str) -> dict:
+        from controller.testing.speed import scaled
+
+        timeout_s = scaled(timeout_s)
         t_end = time.monotonic() + timeout_s
         while True:
             r = self(command, tag)
@@ -119,11 +136,14 @@ class Gateway:
 def orchestrate(out: Path, channel: str, canopend: Path, cocomm: Path) -> int:
     from controller.testing.candump import CandumpCapture
     from controller.testing.e2e import wait_file
+    from controller.testing.speed import scaled, speed_factor, window_factor
 
     out.mkdir(parents=True, exist_ok=True)
-    cfg = plc_yml(out)
+    # (the windows' factor from the harness's measurement on the host, CANTRACK_SPEED_FACTOR)
+    f = window_factor()
+    cfg = plc_yml(out, f)
     bus = ["-i", "socketcan", "-c", channel]
-    res: dict = {"ok": False}
+    res: dict = {"ok": False, "speed_factor": speed_factor(), "window_factor": f}
     cap = CandumpCapture(channel, out / "bus.log").start()
     sim_log = open(out / "sim.out", "wb")  # noqa: SIM115
     run_log = open(out / "run.out", "wb")  # noqa: SIM115
@@ -135,7 +155,8 @@ def orchestrate(out: Path, channel: str, canopend: Path, cocomm: Path) -> int:
     run = None
     try:
         plc.ready()
-        plc(f"{PLC} write 0x1017 0 u16 100", "plc heartbeat on")  # (its own OD: local)
+        plc(f"set sdo_timeout {round(SDO_TIMEOUT_MS * f)}", "plc sdo time-out")
+        plc(f"{PLC} write 0x1017 0 u16 {PLC_HEARTBEAT_MS}", "plc heartbeat on")  # (local)
         wait_file(out / "ready.json", [sim], 90)
         run = subprocess.Popen(CANTRACK + ["run", str(cfg), *bus, "-q", "--duration", "120",
                                            "--report", str(out / "run.json")],
@@ -145,7 +166,7 @@ def orchestrate(out: Path, channel: str, canopend: Path, cocomm: Path) -> int:
         plc(f"{MASTER} read 0x2020 1 u8", "commander")
         # (2011h = 7 already while the drives are enabled; the engage is taken (and answered
         #  OK) once tracking runs: 08000022h before)
-        t_end = time.monotonic() + 60
+        t_end = time.monotonic() + scaled(60)
         while plc(f"{MASTER} write 0x2005 0 u8 5", "engage")["rc"] != 0:
             if time.monotonic() > t_end:
                 raise RuntimeError("the engage was never taken")
@@ -172,6 +193,7 @@ def orchestrate(out: Path, channel: str, canopend: Path, cocomm: Path) -> int:
         # the commander falls silent; another node tries
         other = Gateway(canopend, cocomm, channel, OTHER, out)
         other.ready()
+        other(f"set sdo_timeout {round(SDO_TIMEOUT_MS * f)}", "other sdo time-out")
         plc(f"{PLC} write 0x1017 0 u16 0", "plc heartbeat off")
         other.until(f"{MASTER} read 0x2011 0 u8", "5", 30, "access lost")
         other(f"{MASTER} read 0x2000 0 u8", "state after loss")
@@ -180,7 +202,7 @@ def orchestrate(out: Path, channel: str, canopend: Path, cocomm: Path) -> int:
         other(f"{MASTER} write 0x2015 1 u32 0", "types by another node")
         other(f"{MASTER} read 0x2012 0 u32", "refused count")
         run.send_signal(signal.SIGTERM)
-        res["run_rc"] = run.wait(timeout=60)
+        res["run_rc"] = run.wait(timeout=scaled(60))
         res["ok"] = True
     except Exception as exc:  # noqa: BLE001 -- in result.json; exit code 1
         res["error"] = f"{type(exc).__name__}: {exc}"
@@ -262,6 +284,7 @@ def _abort(c: dict) -> str:
 
 def test_plc_commands_the_controller_through_cocomm(session):
     c = _c(session)
+    assert c["plc sdo time-out"]["rc"] == 0 and c["other sdo time-out"]["rc"] == 0
     assert c["access"]["out"] == "7"
     assert c["name"]["out"] == '"cantrack controller"'  # segmented upload
     assert c["commander"]["out"] == str(PLC)

@@ -19,6 +19,7 @@ import pytest
 from controller.testing import candump as candump_mod
 from controller.testing import capture, vcan, vm
 from controller.testing.capture import Kind
+from controller.testing.speed import MAX_FACTOR
 
 # ---------------------------------------------------------------------------------------------
 # initramfs
@@ -176,6 +177,29 @@ def test_guest_env(monkeypatch, tmp_path):
     assert "SECRET_TOKEN" not in env and env["PYTHONDONTWRITEBYTECODE"] == "1"
     assert (env["CANTRACK_SCRATCH"], env["CANTRACK_CAN_CHANNEL"], env["CANTRACK_VCAN_MODE"]) \
         == (str(tmp_path), "vcan0", "vm")
+    monkeypatch.delenv("CANTRACK_SPEED_FACTOR", raising=False)
+    assert "CANTRACK_SPEED_FACTOR" not in vm.guest_env(None, tmp_path, "vcan0")
+    assert vm.guest_env({"CANTRACK_SPEED_FACTOR": "9"}, tmp_path, "vcan0",
+                        2.5)["CANTRACK_SPEED_FACTOR"] == "2.500"
+
+
+def test_limit_factor_is_the_callers_or_measured_now(monkeypatch):
+    """The VM's limits and the guest's windows: the factor the caller built its command with,
+    else the host's slowness measured at this moment (not at the session's start)."""
+    from controller.testing import speed
+    monkeypatch.setenv(speed.ENV, "1")  # (restored afterwards: fresh_factor sets it)
+    assert vm.limit_factor({"CANTRACK_SPEED_FACTOR": "3.5"}) == 3.5
+    assert vm.limit_factor({"CANTRACK_SPEED_FACTOR": "0.3"}) == 1.0  # never below 1
+    with pytest.raises(vm.VmError, match="not a number"):
+        vm.limit_factor({"CANTRACK_SPEED_FACTOR": "fast"})
+    calls = []
+    monkeypatch.setattr(speed, "_GIVEN", None)
+    monkeypatch.setattr(speed, "measure", lambda runs=9: calls.append(runs) or 4.0 + len(calls))
+    assert vm.limit_factor(None) == 5.0 and vm.limit_factor({}) == 6.0  # measured each time
+    assert speed.speed_factor() == 6.0 and speed.os.environ[speed.ENV] == "6.000"
+    monkeypatch.setattr(speed, "_GIVEN", "2")  # given to this process: kept
+    assert speed.fresh_factor() == 6.0 and len(calls) == 2
+    monkeypatch.setattr(speed, "_factor", None)
 
 
 def test_vcan_mode_and_availability(monkeypatch):
@@ -359,6 +383,7 @@ echo "flags=$(cat /sys/class/net/$CANTRACK_CAN_CHANNEL/flags)"
 echo "cwd=$(pwd)"
 echo "foo=$CANTRACK_TEST_FOO"
 echo "mode=$CANTRACK_VCAN_MODE"
+echo "speed=$CANTRACK_SPEED_FACTOR"
 echo written > "$CANTRACK_SCRATCH/from-guest.txt"
 cat "$CANTRACK_SCRATCH/from-host.txt"
 "$PYTHON" -S -c "import socket as S; s = S.socket(S.AF_CAN, S.SOCK_RAW, S.CAN_RAW)
@@ -372,7 +397,8 @@ exec sleep 600
 @pytest.mark.vcan
 def test_harness_round_trip(vcan_runner, tmp_path):
     """Environment, working directory, scratch both ways, vcan0 up, AF_CAN bind, stderr, and
-    the command time-out (the command sleeps past it: terminated, exit 143).  The checks take
+    the command time-out (the command sleeps past it: terminated, exit 143), the host's
+    measured slowness passed on (by which the time-out was stretched).  The checks take
     about 1 s in the VM (3 s on a loaded machine); the 8 s time-out leaves room."""
     (tmp_path / "from-host.txt").write_text("host-file-seen\n")
     r = vcan_runner.run(["/bin/sh", "-c", GUEST_CHECKS], timeout_s=8,
@@ -386,9 +412,11 @@ def test_harness_round_trip(vcan_runner, tmp_path):
     assert "host-file-seen" in r.stdout and r.stderr.strip() == "to-stderr"
     assert (tmp_path / "from-guest.txt").read_text() == "written\n"
     assert r.timed_out and r.returncode == 143
-    if r.mode == "vm":
-        assert r.boot_s is not None and 0 < r.boot_s < 90
-        assert 7 <= r.command_s < 30
+    f = r.speed_factor
+    assert 1.0 <= f <= MAX_FACTOR and float(out["speed"]) == pytest.approx(f, abs=1e-3)
+    if r.mode == "vm":  # (the guest's limit: round(8 s x f); boot within 90 s x f)
+        assert r.boot_s is not None and 0 < r.boot_s < 90 * f
+        assert round(8 * f) - 1 <= r.command_s < 30 * f, (r.command_s, f)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -417,3 +445,69 @@ def test_hil_bus_traffic_is_clean_canopen(hil_bus_config, tmp_path):
         frames = capture.decode_messages(msgs)
     bad = capture.problems(frames, allowed=set(Kind) - {Kind.UNKNOWN})
     assert not bad, f"{decoder}:\n" + "\n".join(bad[:30])
+
+
+# ---------------------------------------------------------------------------------------------
+# the vcan tier's windows on a slow machine
+
+def test_window_factor_is_one_idle_and_twice_the_slowness_when_busy():
+    from controller.testing.speed import MAX_FACTOR, window_factor
+    assert window_factor(1.0) == 1.0 and window_factor(0.5) == 1.0
+    assert window_factor(1.5) == 2.25 and window_factor(3.5) == 7.0
+    assert window_factor(15.0) == MAX_FACTOR
+
+
+def test_stretched_bus_config_windows_and_what_stays(tmp_path):
+    """examples/bus/vcan.yml stretched x 2.5: every supervision window x 2.5 (read back by the
+    config loader, defaults included), the SYNC period, heartbeat periods, PDOs and motion as
+    written; x 1 reads back as the original."""
+    from controller.canopen.config import load_config
+    from controller.testing.stretch import stretch_bus_config, stretch_mapping
+
+    src = Path(__file__).resolve().parents[1] / "examples" / "bus" / "vcan.yml"
+    text = src.read_text() + ("\n.plc:\n  commander: 32\n")
+    (tmp_path / "in").mkdir()
+    idle = tmp_path / "in" / "vcan.yml"
+    idle.write_text(text.replace("../../eds/", str(src.parents[2] / "eds") + "/"))
+    a = load_config(idle)
+    b = load_config(stretch_bus_config(idle, tmp_path / "s.yml", 2.5))
+    one = load_config(stretch_bus_config(idle, tmp_path / "one.yml", 1.0))
+    assert b.master.sync_period_us == a.master.sync_period_us == 100_000
+    for name in ("encoder", "x", "y"):
+        sa, sb = a.slaves[name], b.slaves[name]
+        assert sa.heartbeat_producer_ms == sb.heartbeat_producer_ms == 200
+        assert sb.hb_multiplier(b.options) == 2.5 * sa.hb_multiplier(a.options) == 10.0
+        assert _plain(sb.tpdo) == _plain(sa.tpdo) and _plain(sb.rpdo) == _plain(sa.rpdo)
+    assert b.master.heartbeat_multiplier == 10.0  # (the drives' 1016h time-out of us)
+    fe = {w.index: w.value for w in b.slaves["x"].sdo}
+    assert fe[0x6066] == 1250 and fe[0x6065] == 1_000_000 and fe[0x6085] == 20_000_000
+    ta, tb = a.tracking, b.tracking
+    assert tb.conveyor.silent_cycles == 50 and ta.conveyor.silent_cycles == 20
+    assert tb.max_missed_in_row == 63 and ta.max_missed_in_row == 25  # (the default, x 2.5)
+    assert (tb.timeouts.boot_up_s, tb.timeouts.sdo_s, tb.timeouts.enable_s,
+            tb.timeouts.stop_s) == (25.0, 5.0, 50.0, 2.5)  # stop_s: the default 1 s
+    assert tb.timeouts.sdo_retries == ta.timeouts.sdo_retries
+    assert tb.tracker == ta.tracker and _plain(tb.axes) == _plain(ta.axes)
+    assert tb.window == ta.window and _plain(b.simulation) == _plain(a.simulation)
+    assert b.plc.commander_heartbeat_ms == 2.5 * a.plc.commander_heartbeat_ms == 750
+    # defaults stretched where the file has no value (options' multiplier 3: 3 x 200 ms)
+    bare = stretch_mapping({"master": {"node_id": 1, "sync_period": 2000}}, 2.0)
+    assert bare["options"] == {"heartbeat_multiplier": 6.0} and bare["master"] == {
+        "node_id": 1, "sync_period": 2000}
+    # x 1: the same configuration
+    assert _plain((one.master, one.options, one.slaves, one.tracking, one.plc)) == _plain(
+        (a.master, a.options, a.slaves, a.tracking, a.plc))
+
+
+def _plain(v):
+    """A configuration value without its file line numbers."""
+    import dataclasses
+    from collections.abc import Mapping
+    if dataclasses.is_dataclass(v) and not isinstance(v, type):
+        return {f.name: _plain(getattr(v, f.name)) for f in dataclasses.fields(v)
+                if not f.name.endswith("line") and f.name != "file"}
+    if isinstance(v, Mapping):
+        return {k: _plain(x) for k, x in v.items()}
+    if isinstance(v, (list, tuple)):
+        return [_plain(x) for x in v]
+    return v

@@ -44,6 +44,7 @@ from typing import Any
 
 from ..resources import data_path
 from .candump import CandumpCapture
+from .speed import scaled
 
 EDS_DIR = data_path("eds")
 ENCODER_EDS = EDS_DIR / "cantrack-encoder.eds"
@@ -301,14 +302,16 @@ def main(argv: list[str] | None = None) -> int:
                    help="SYNC counter overflow value 2..240 (1019), default 10")
     p.add_argument("--sync-count", type=int, default=40, help="SYNCs to produce, default 40")
     p.add_argument("--wait-s", type=float, default=60.0,
-                   help="time-out of each wait for the other process [s]")
+                   help="time-out of each wait for the other process [s] (x the machine's "
+                        "measured slowness, controller.testing.speed)")
     a = p.parse_args(argv)
     if not 2 <= a.sync_overflow <= 240:
         p.error(f"--sync-overflow {a.sync_overflow}: allowed 2..240 (CiA 301 object 1019)")
     if a.role == "device":
         return device_main(a.channel, a.out)
     return run_main(a.channel, a.out, sync_period_s=a.sync_period_ms / 1e3,
-                    sync_overflow=a.sync_overflow, sync_count=a.sync_count, wait_s=a.wait_s)
+                    sync_overflow=a.sync_overflow, sync_count=a.sync_count,
+                    wait_s=scaled(a.wait_s))
 
 
 if __name__ == "__main__":

@@ -213,8 +213,10 @@ class HilBus:
 
         import can
 
+        from .speed import scaled
+
         missing = set(node_ids)
-        t_end = time.monotonic() + timeout_s
+        t_end = time.monotonic() + scaled(timeout_s)  # (a limit: follows the load)
         with can.Bus(**self.bus_kwargs()) as bus:
             while missing and time.monotonic() < t_end:
                 msg = bus.recv(min(0.2, max(0.0, t_end - time.monotonic())))
@@ -281,7 +283,7 @@ def pytest_terminal_summary(terminalreporter, exitstatus, config: pytest.Config)
     for r in runner.results:
         boot = f"boot {r.boot_s:.1f} s, " if r.boot_s is not None else ""
         cmd = f"command {r.command_s:.1f} s" if r.command_s is not None else ""
-        parts.append(f"{boot}{cmd}")
+        parts.append(f"{boot}{cmd}, slowness x {r.speed_factor:.2f}")
     terminalreporter.write_line(
         f"vcan ({runner.mode}, {resolve_mode(config.getoption('--vcan-mode'))}): "
         f"{len(runner.results)} run(s): " + "; ".join(parts))

@@ -24,7 +24,7 @@ import time
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
-from .vm import DEFAULT_CHANNEL, VmError, VmResult, run_in_vm, vm_available
+from .vm import DEFAULT_CHANNEL, VmError, VmResult, limit_factor, run_in_vm, vm_available
 
 MODES = ("auto", "native", "vm")
 _IFF_UP = 0x1
@@ -164,8 +164,8 @@ def run_native(argv: Sequence[str], timeout_s: float = 120.0,
     ok, why = ensure_native_vcan(channel)
     if not ok:
         raise VmError("native vcan not possible: " + why)
-    from .speed import scaled
-    timeout_s = scaled(timeout_s)  # (a limit: stretched by the machine's measured slowness)
+    factor = limit_factor(env)  # (a limit: stretched by the machine's slowness measured now)
+    timeout_s *= factor
     scratch = Path(scratch_dir) if scratch_dir is not None else Path(
         tempfile.mkdtemp(prefix="cantrack-vcan-"))
     scratch.mkdir(parents=True, exist_ok=True)
@@ -175,7 +175,7 @@ def run_native(argv: Sequence[str], timeout_s: float = 120.0,
     if env:
         full_env.update(env)
     full_env.update({"CANTRACK_SCRATCH": str(scratch), "CANTRACK_CAN_CHANNEL": channel,
-                     "CANTRACK_VCAN_MODE": "native"})
+                     "CANTRACK_VCAN_MODE": "native", "CANTRACK_SPEED_FACTOR": f"{factor:.3f}"})
     m0 = time.monotonic()
     timed_out = False
     with subprocess.Popen(list(map(str, argv)), cwd=cwd, env=full_env, stdout=subprocess.PIPE,
@@ -197,7 +197,7 @@ def run_native(argv: Sequence[str], timeout_s: float = 120.0,
         rc = 128 - rc
     return VmResult(returncode=rc, stdout=out, stderr=err, scratch_dir=scratch,
                     mode="native", boot_s=None, command_s=wall, wall_s=wall, console="",
-                    channel=channel, timed_out=timed_out)
+                    channel=channel, timed_out=timed_out, speed_factor=factor)
 
 
 def run_with_vcan(argv: Sequence[str], timeout_s: float = 120.0,

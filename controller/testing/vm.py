@@ -97,6 +97,9 @@ class VmResult:
     command ran; ``wall_s``: everything.  ``console``: the guest's serial console (kernel and
     init messages; empty in native mode).  ``channel``: the SocketCAN interface (``vcan0``).
     ``timed_out``: the command was still running at its time-out and was terminated.
+    ``speed_factor``: the host's measured slowness at the start
+    (:func:`controller.testing.speed.fresh_factor`), by which the time limits were stretched
+    and which the command got in ``CANTRACK_SPEED_FACTOR``.
     """
 
     returncode: int
@@ -110,6 +113,7 @@ class VmResult:
     console: str = ""
     channel: str = DEFAULT_CHANNEL
     timed_out: bool = False
+    speed_factor: float = 1.0
 
     def check(self) -> VmResult:
         """Raise :class:`VmError` with stdout/stderr when the command failed; else self."""
@@ -537,9 +541,25 @@ def vm_available() -> tuple[bool, str]:
     return True, "VM: " + ", ".join(details)
 
 
-def guest_env(env: Mapping[str, str] | None, scratch: Path, channel: str) -> dict[str, str]:
+def limit_factor(env: Mapping[str, str] | None) -> float:
+    """The factor a command's time limits and windows are stretched by: ``env``'s
+    ``CANTRACK_SPEED_FACTOR`` when the caller chose one (it built the command's arguments
+    with it), else the host's slowness measured now (:func:`controller.testing.speed.
+    fresh_factor`)."""
+    from .speed import ENV, MAX_FACTOR, fresh_factor
+    if env and env.get(ENV):
+        try:
+            return min(MAX_FACTOR, max(1.0, float(env[ENV])))
+        except ValueError:
+            raise VmError(f"{ENV}={env[ENV]!r}: not a number") from None
+    return fresh_factor()
+
+
+def guest_env(env: Mapping[str, str] | None, scratch: Path, channel: str,
+              speed_factor: float | None = None) -> dict[str, str]:
     """The environment of the guest command: :data:`PASSED_ENV` from the host, then ``env``,
-    then the harness's own variables (``CANTRACK_SCRATCH``, ``CANTRACK_CAN_CHANNEL``, ...)."""
+    then the harness's own variables (``CANTRACK_SCRATCH``, ``CANTRACK_CAN_CHANNEL``,
+    ``CANTRACK_SPEED_FACTOR`` = ``speed_factor`` when given, ...)."""
     out = {k: os.environ[k] for k in PASSED_ENV if k in os.environ}
     out.setdefault("PATH", "/usr/local/bin:/usr/bin:/bin:/usr/sbin:/sbin")
     out["PYTHONDONTWRITEBYTECODE"] = "1"   # the host root is read-only in the guest
@@ -550,6 +570,8 @@ def guest_env(env: Mapping[str, str] | None, scratch: Path, channel: str) -> dic
     out["CANTRACK_SCRATCH"] = str(scratch)
     out["CANTRACK_CAN_CHANNEL"] = channel
     out["CANTRACK_VCAN_MODE"] = "vm"
+    if speed_factor is not None:
+        out["CANTRACK_SPEED_FACTOR"] = f"{speed_factor:.3f}"
     return out
 
 
@@ -568,15 +590,17 @@ def run_in_vm(argv: Sequence[str], timeout_s: float = 120.0, env: Mapping[str, s
     ``timeout_s`` limits the command (seconds, guest time): past it the guest's init sends
     SIGTERM (SIGKILL 5 s later), the result has ``timed_out=True``.  ``boot_timeout_s`` is
     added for booting and powering off; past both, qemu is killed and :class:`VmTimeoutError`
-    raised.  :class:`VmError` when the guest powered off without an exit code (boot or init
+    raised.  Both are stretched by :func:`limit_factor`, which the command gets in
+    ``CANTRACK_SPEED_FACTOR``.  :class:`VmError` when the guest powered off without an exit code (boot or init
     failure; the message ends with the guest console's last lines).
     """
     if not argv:
         raise VmError("run_in_vm: empty argv")
-    from .speed import scaled
-    # (limits, not waits: stretched by the host's measured slowness, so that a busy machine
-    #  does not time a healthy guest out)
-    timeout_s, boot_timeout_s = scaled(timeout_s), scaled(boot_timeout_s)
+    # (limits, not waits: stretched by the host's slowness measured now, so that a busy
+    #  machine does not time a healthy guest out; the guest gets the same factor for its
+    #  real-time windows)
+    factor = limit_factor(env)
+    timeout_s, boot_timeout_s = timeout_s * factor, boot_timeout_s * factor
     if not re.fullmatch(r"[A-Za-z0-9_.-]{1,15}", channel):
         raise VmError(f"run_in_vm: channel {channel!r} is not an interface name "
                       "(1-15 characters of A-Z a-z 0-9 _ . -)")
@@ -593,7 +617,7 @@ def run_in_vm(argv: Sequence[str], timeout_s: float = 120.0, env: Mapping[str, s
         shutil.rmtree(jd)
     jd.mkdir(parents=True)
     cwd = Path(cwd).resolve() if cwd is not None else Path.cwd()
-    genv = guest_env(env, scratch, channel)
+    genv = guest_env(env, scratch, channel, factor)
     run_sh = ["#!/bin/sh", f"cd {shlex.quote(str(cwd))} || exit 125",
               "exec /usr/bin/env -i " + " ".join(shlex.quote(f"{k}={v}") for k, v in genv.items())
               + " " + " ".join(shlex.quote(str(a)) for a in argv)]
@@ -640,7 +664,8 @@ def run_in_vm(argv: Sequence[str], timeout_s: float = 120.0, env: Mapping[str, s
     return VmResult(returncode=int(_read(rc_file).strip() or 255), stdout=_read(jd / "stdout"),
                     stderr=_read(jd / "stderr"), scratch_dir=scratch, mode="vm",
                     boot_s=boot_s, command_s=command_s, wall_s=wall, console=console,
-                    channel=channel, timed_out=(jd / "timed-out").is_file())
+                    channel=channel, timed_out=(jd / "timed-out").is_file(),
+                    speed_factor=factor)
 
 
 def qemu_command(qemu: Path, image: Path, initrd: Path, scratch: Path, *, memory_mb: int = 1024,
