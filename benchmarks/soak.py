@@ -35,6 +35,8 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
 DEMO = ROOT / "examples" / "bus" / "demo.yml"
 
 #: one line of slack over the size limit (a record is written whole, then the file rotates)
@@ -80,53 +82,87 @@ def outputs(directory: Path) -> dict[str, int]:
 
 class TelemetryTail:
     """Reads the streaming telemetry (and its rotated files) as it grows: machine time and
-    the items done."""
+    the items done.
+
+    The live file is ``telemetry.jsonl``; a rotation renames it (same inode) to a new,
+    unique name (python-can's ``telemetry_<date>T<time>_#NNN.jsonl``, never renamed again)
+    and starts a new live file.  So the live file is followed by its inode, each rotated file
+    by its name: a rotated name seen for the first time is the former live file when its
+    inode is one the live file had (read on from there), else a file never seen (read from
+    the start).  Inodes alone would not do: retention deletes old files, and the next live
+    file may get a deleted file's inode (and its offset: nothing read any more).
+    """
+
+    LIVE = "telemetry.jsonl"
 
     def __init__(self, directory: Path) -> None:
         self.directory = directory
-        self.offsets: dict[int, int] = {}
+        self.live_ino: int | None = None
+        self.live_off = 0
+        #: offsets of the files that were live (inode -> bytes read), until seen rotated
+        self.former: dict[int, int] = {}
+        self.rotated_seen: set[str] = set()
         self.t_s = 0.0
         self.items: list[dict] = []
         self.run: dict | None = None
         self.end: dict | None = None
 
     def poll(self) -> None:
-        files = []
-        for p in self.directory.glob("telemetry*.jsonl"):
-            try:
-                st = p.stat()
-            except OSError:
+        from controller.canopen.io.rotating import rotated_files
+
+        for p in rotated_files(self.directory / self.LIVE):
+            if p.name in self.rotated_seen:
                 continue
-            files.append((st.st_mtime, st.st_ino, p))
-        # by inode: a rotation renames the file (same inode) and starts a new one
-        for _, ino, p in sorted(files):
             try:
-                with open(p, "rb") as f:
-                    f.seek(self.offsets.get(ino, 0))
-                    data = f.read()
+                ino = p.stat().st_ino
             except OSError:
-                continue  # rotated away meanwhile
-            end = data.rfind(b"\n") + 1  # only whole lines
-            self.offsets[ino] = self.offsets.get(ino, 0) + end
-            for line in data[:end].splitlines():
-                try:
-                    d = json.loads(line)
-                except ValueError:
-                    continue
-                kind = d.get("type")
-                if kind in ("cycle", "status") and d.get("t_s") is not None:
+                continue  # deleted by the retention meanwhile
+            start = self.former.pop(ino, 0)
+            if ino == self.live_ino:  # (renamed since the last poll)
+                start, self.live_ino = self.live_off, None
+            self._read(p, start)
+            self.rotated_seen.add(p.name)
+        live = self.directory / self.LIVE
+        try:
+            ino = live.stat().st_ino
+        except OSError:
+            return
+        if ino != self.live_ino:
+            if self.live_ino is not None:
+                self.former[self.live_ino] = self.live_off
+            self.former.pop(ino, None)  # (an inode used again: a new file)
+            self.live_ino, self.live_off = ino, 0
+        self.live_off = self._read(live, self.live_off)
+
+    def _read(self, path: Path, offset: int) -> int:
+        """Parse the whole lines of ``path`` from ``offset``; the offset after them."""
+        try:
+            with open(path, "rb") as f:
+                f.seek(offset)
+                data = f.read()
+        except OSError:
+            return offset  # rotated away meanwhile (read under its new name)
+        end = data.rfind(b"\n") + 1  # only whole lines
+        for line in data[:end].splitlines():
+            try:
+                d = json.loads(line)
+            except ValueError:
+                continue
+            kind = d.get("type")
+            if kind in ("cycle", "status") and d.get("t_s") is not None:
+                self.t_s = max(self.t_s, float(d["t_s"]))
+            elif kind == "item" and d.get("outcome") in ("placed", "missed"):
+                self.items.append(d)
+                t = d.get("t_s")
+                if t is not None:
+                    self.t_s = max(self.t_s, float(t))
+            elif kind == "run":
+                self.run = d
+            elif kind == "end":
+                self.end = d
+                if d.get("t_s") is not None:
                     self.t_s = max(self.t_s, float(d["t_s"]))
-                elif kind == "item" and d.get("outcome") in ("placed", "missed"):
-                    self.items.append(d)
-                    t = d.get("t_s")
-                    if t is not None:
-                        self.t_s = max(self.t_s, float(t))
-                elif kind == "run":
-                    self.run = d
-                elif kind == "end":
-                    self.end = d
-                    if d.get("t_s") is not None:
-                        self.t_s = max(self.t_s, float(d["t_s"]))
+        return offset + end
 
 
 def main(argv=None) -> int:

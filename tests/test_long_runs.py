@@ -9,6 +9,7 @@ import signal
 import subprocess
 import sys
 import textwrap
+from pathlib import Path
 import time
 
 import can
@@ -144,8 +145,10 @@ WRITER = textwrap.dedent("""
 """)
 
 
-@pytest.mark.parametrize("suffix", [".log", ".asc"])
+@pytest.mark.parametrize("suffix", [".log", ".asc", ".csv"])
 def test_line_based_files_survive_sigkill_but_for_the_last_line(tmp_path, suffix):
+    """The README's claim: after SIGKILL the line-based bus logs and the telemetry read back
+    whole but for their last line."""
     bus, tel = tmp_path / f"bus{suffix}", tmp_path / "telemetry.jsonl"
     proc = subprocess.Popen([sys.executable, "-c", WRITER, str(bus), str(tel)],
                             env=dict(os.environ))
@@ -172,6 +175,76 @@ def test_line_based_files_survive_sigkill_but_for_the_last_line(tmp_path, suffix
     assert [round(m.timestamp / 0.002) for m in frames] == list(range(len(frames)))
 
 
+BLF_WRITER = textwrap.dedent("""
+    import sys, time, can
+    from controller.canopen.io.rotating import BusLog
+    log = BusLog(sys.argv[1], flush_s=0.05)
+    i = 0
+    while True:
+        log.on_message_received(can.Message(timestamp=i * 0.002, arbitration_id=0x181,
+                                            is_extended_id=False, data=bytes(8)))
+        i += 1
+        if i % 100 == 0:
+            print(i, flush=True)  # (written at least this many)
+            time.sleep(0.001)
+""")
+
+
+def test_blf_after_sigkill_keeps_its_completed_containers_only(tmp_path):
+    """The README's claim for ``.blf``: after SIGKILL python-can reads the frames of the
+    completed (compressed) containers, from the first without a gap; the frames of the last,
+    open container are lost (128 KiB of objects: about 1,800 frames of 8 bytes), not just a
+    line's worth."""
+    blf, out = tmp_path / "bus.blf", tmp_path / "writer.out"
+    with open(out, "w") as log:
+        proc = subprocess.Popen([sys.executable, "-c", BLF_WRITER, str(blf)], stdout=log,
+                                env=dict(os.environ))
+        try:
+            # the cue: two compressed containers on disk
+            t_end = time.monotonic() + 120
+            while not (blf.is_file() and blf.stat().st_size > 200_000):
+                assert proc.poll() is None, "the writer ended"
+                assert time.monotonic() < t_end, "no 200 kB of .blf within 120 s"
+                time.sleep(0.02)
+        finally:
+            proc.send_signal(signal.SIGKILL)
+            proc.wait()
+    written = int(out.read_text().split()[-1])
+    ticks = [round(m.timestamp / 0.002) for m in can.LogReader(str(blf))]
+    assert len(ticks) > 1000 and ticks == list(range(len(ticks)))
+    assert written - 2100 <= len(ticks) < written, (len(ticks), written)
+
+
+def test_demo_killed_keeps_its_telemetry_and_bus_log(tmp_path):
+    """``cantrack demo`` killed with SIGKILL (no handler can run): telemetry.jsonl and
+    bus.log read back whole but for their last line, the items done so far among them."""
+    out = tmp_path / "demo"
+    proc = subprocess.Popen([sys.executable, "-m", "controller.cli", "demo", "-o", str(out),
+                             "--duration", "3600", "--no-plot", "-q"],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    tel = out / "telemetry.jsonl"
+    try:
+        # the cue: an item line flushed (every item is flushed as it is done)
+        t_end = time.monotonic() + 300
+        while not (tel.is_file() and '"type": "item"' in tel.read_text(errors="replace")):
+            assert proc.poll() is None, "the demo ended"
+            assert time.monotonic() < t_end, "no item in the telemetry within 300 s"
+            time.sleep(0.05)
+    finally:
+        proc.send_signal(signal.SIGKILL)
+        proc.wait()
+    assert proc.returncode == -signal.SIGKILL
+    lines = tel.read_text().split("\n")[:-1]  # (the last piece may be cut)
+    records = [json.loads(x) for x in lines]
+    assert records[0]["type"] == "run" and any(r["type"] == "item" for r in records)
+    assert not any(r["type"] == "end" for r in records)  # (killed: no end line)
+    text = (out / "bus.log").read_text()
+    whole = tmp_path / "whole.log"
+    whole.write_text(text[:text.rstrip("\n").rfind("\n") + 1])
+    stamps = [m.timestamp for m in can.LogReader(str(whole))]
+    assert len(stamps) > 100 and stamps == sorted(stamps)
+
+
 def test_speed_factor_follows_the_environment_and_stretches_limits(monkeypatch):
     from controller.testing import speed
     monkeypatch.setattr(speed, "_factor", None)
@@ -186,3 +259,35 @@ def test_speed_factor_follows_the_environment_and_stretches_limits(monkeypatch):
     assert 1.0 <= f <= speed.MAX_FACTOR and float(os.environ[speed.ENV]) == pytest.approx(f,
                                                                                           abs=1e-3)
     monkeypatch.setattr(speed, "_factor", None)
+
+
+def test_soak_tail_follows_rotations_when_inodes_are_used_again(tmp_path):
+    """benchmarks/soak.py's reader of the streaming telemetry: with a retention of one
+    rotated file, each new live file may get the inode of the file just deleted; every item
+    is still read once, in order (before, the deleted file's offset was applied to the new
+    file, and the display stopped)."""
+    import importlib.util
+
+    from controller.canopen.io.rotating import JsonLines
+
+    spec = importlib.util.spec_from_file_location(
+        "soak", Path(__file__).resolve().parents[1] / "benchmarks" / "soak.py")
+    assert spec is not None and spec.loader is not None
+    soak = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(soak)
+    w = JsonLines(tmp_path / "telemetry.jsonl", max_bytes=1500, keep=1, header={"type": "run"})
+    tail = soak.TelemetryTail(tmp_path)
+    inodes = set()
+    for i in range(400):
+        w.write({"type": "item", "outcome": "placed", "index": i, "t_s": 0.5 * i,
+                 "max_error_mm": 0.01}, 0.5 * i)
+        w.flush()
+        inodes.add((tmp_path / "telemetry.jsonl").stat().st_ino)
+        if i % 7 == 0:   # (sometimes one rotation between two polls, sometimes none)
+            tail.poll()
+    w.write({"type": "end", "t_s": 200.0})
+    w.close()
+    tail.poll()
+    assert w.rollover_count > 20 and len(inodes) < w.rollover_count  # inodes used again
+    assert [d["index"] for d in tail.items] == list(range(400))
+    assert tail.t_s == 200.0 and tail.end is not None and tail.run is not None
