@@ -53,6 +53,7 @@ class SyncFollower:
         self.T = float(sample_time_s)
         k = 1.0 - 1e-9
         self._V, self._A, self._J = limits.vel * k, limits.acc * k, limits.jerk * k
+        self._constants()
         self.n = 0
         self._rk: Any = None
         self._inp: Any = None
@@ -69,6 +70,19 @@ class SyncFollower:
 
     def __setstate__(self, d) -> None:
         self.__dict__.update(d)
+        if "_c" not in d:  # a state saved before the constants were cached
+            self._constants()
+
+    def _constants(self) -> None:
+        """The copy test's constants of T and the limits, computed once with the
+        expressions the test used per call (the same values, bit for bit)."""
+        T = self.T
+        T2 = T * T
+        J2 = self._J * self._J
+        #: 1/T, 2/T^2, 6/T^3, T^2/2, T^3/6, J^2, V^2 T^2, A^2 T^4, J^2 T^6
+        self._c = (1.0 / T, 2.0 / (T * T), 6.0 / (T * T * T), 0.5 * T * T, T * T * T / 6.0,
+                   J2, self._V * self._V * T2, self._A * self._A * T2 * T2,
+                   J2 * T2 * T2 * T2)
 
     def _solver(self, n: int) -> None:
         from ruckig import InputParameter, Ruckig, Synchronization, Trajectory
@@ -92,7 +106,126 @@ class SyncFollower:
         the two setpoint positions before p (``p2``, ``p3``), the finite differences that
         the step makes, (m - p)/T, (m - 2p + p2)/T^2, (m - 3p + 3p2 - p3)/T^3 (what the
         drive sees), and those of the next two samples with the master going on at its
-        jerk ``mj``, must also be within V, A and J."""
+        jerk ``mj``, must also be within V, A and J.
+
+        The 3-D and 1-D channels run written-out forms of the same operations in the same
+        order (:meth:`_copyable3`, :meth:`copyable1`: bit-identical sums, a few
+        microseconds less per sample); other lengths the loop (:meth:`_copyable_n`)."""
+        n = len(p)
+        if n == 3:
+            return self._copyable3(p, v, a, mp, mv, ma, p2, p3, mj)
+        if n == 1:
+            return self.copyable1(p[0], v[0], a[0], mp[0], mv[0], ma[0],
+                                  None if p2 is None else p2[0],
+                                  None if p3 is None else p3[0],
+                                  0.0 if mj is None else mj[0])
+        return self._copyable_n(p, v, a, mp, mv, ma, p2, p3, mj)
+
+    def _copyable3(self, p: Vec, v: Vec, a: Vec, mp: Vec, mv: Vec, ma: Vec,
+                   p2: Vec | None, p3: Vec | None, mj: Vec | None) -> bool:
+        """:meth:`copyable` for 3 components, written out (the loop's operations in its
+        order; a sum that starts at 0.0 adds its first square exactly)."""
+        ia, iv, ip, h, h3, J2, lv, la, lj = self._c
+        T = self.T
+        p0, p1, p2_ = p
+        v0, v1, v2 = v
+        a0, a1, a2 = a
+        m0, m1, m2 = mp
+        n0, n1, n2 = mv
+        b0, b1, b2 = ma
+        x = (b0 - a0) * ia
+        y = (b1 - a1) * ia
+        z = (b2 - a2) * ia
+        if not x * x + y * y + z * z <= J2:
+            return False
+        x = (n0 - v0 - a0 * T) * iv
+        y = (n1 - v1 - a1 * T) * iv
+        z = (n2 - v2 - a2 * T) * iv
+        if not x * x + y * y + z * z <= J2:
+            return False
+        x = (m0 - p0 - v0 * T - a0 * h) * ip
+        y = (m1 - p1 - v1 * T - a1 * h) * ip
+        z = (m2 - p2_ - v2 * T - a2 * h) * ip
+        if not (x * x + y * y + z * z <= J2
+                and math.sqrt(b0 * b0 + b1 * b1 + b2 * b2) <= self._A
+                and math.sqrt(n0 * n0 + n1 * n1 + n2 * n2) <= self._V):
+            return False
+        if p2 is None or p3 is None:
+            return True
+        j0, j1, j2 = (0.0, 0.0, 0.0) if mj is None else mj
+        # per component: the differences e of the positions p3, p2, p, m, m(+1), m(+2)
+        # and their differences c; the sums over the components of the three steps' first,
+        # second and third differences (the loop's d1, x, y)
+        fv3 = fa3 = fj3 = fv4 = fa4 = fj4 = fv5 = fa5 = fj5 = 0.0
+        for q3, q2, q, m, mvi, mai, mji in ((p3[0], p2[0], p0, m0, n0, b0, j0),
+                                            (p3[1], p2[1], p1, m1, n1, b1, j1),
+                                            (p3[2], p2[2], p2_, m2, n2, b2, j2)):
+            s4 = m + mvi * T + mai * h + mji * h3
+            s5 = m + 2.0 * (mvi * T + mai * 2.0 * h) + 8.0 * mji * h3
+            e0 = q2 - q3
+            e1 = q - q2
+            e2 = m - q
+            e3 = s4 - m
+            e4 = s5 - s4
+            c1 = e1 - e0
+            c2 = e2 - e1
+            c3 = e3 - e2
+            c4 = e4 - e3
+            fv3 += e2 * e2
+            fa3 += c2 * c2
+            x = c2 - c1
+            fj3 += x * x
+            fv4 += e3 * e3
+            fa4 += c3 * c3
+            x = c3 - c2
+            fj4 += x * x
+            fv5 += e4 * e4
+            fa5 += c4 * c4
+            x = c4 - c3
+            fj5 += x * x
+        return not (fv3 > lv or fa3 > la or fj3 > lj or fv4 > lv or fa4 > la or fj4 > lj
+                    or fv5 > lv or fa5 > la or fj5 > lj)
+
+    def copyable1(self, p: float, v: float, a: float, mp: float, mv: float, ma: float,
+                  p2: float | None = None, p3: float | None = None,
+                  mj: float = 0.0) -> bool:
+        """:meth:`copyable` of a 1-D channel on floats (the rotation angle), written out."""
+        ia, iv, ip, h, h3, J2, lv, la, lj = self._c
+        T = self.T
+        x = (ma - a) * ia
+        if not x * x <= J2:
+            return False
+        x = (mv - v - a * T) * iv
+        if not x * x <= J2:
+            return False
+        x = (mp - p - v * T - a * h) * ip
+        if not (x * x <= J2 and math.sqrt(ma * ma) <= self._A
+                and math.sqrt(mv * mv) <= self._V):
+            return False
+        if p2 is None or p3 is None:
+            return True
+        s4 = mp + mv * T + ma * h + mj * h3
+        s5 = mp + 2.0 * (mv * T + ma * 2.0 * h) + 8.0 * mj * h3
+        e0 = p2 - p3
+        e1 = p - p2
+        e2 = mp - p
+        e3 = s4 - mp
+        e4 = s5 - s4
+        c1 = e1 - e0
+        c2 = e2 - e1
+        c3 = e3 - e2
+        c4 = e4 - e3
+        y3 = c2 - c1
+        y4 = c3 - c2
+        y5 = c4 - c3
+        return not (e2 * e2 > lv or c2 * c2 > la or y3 * y3 > lj or e3 * e3 > lv
+                    or c3 * c3 > la or y4 * y4 > lj or e4 * e4 > lv or c4 * c4 > la
+                    or y5 * y5 > lj)
+
+    def _copyable_n(self, p: Vec, v: Vec, a: Vec, mp: Vec, mv: Vec, ma: Vec,
+                    p2: Vec | None = None, p3: Vec | None = None,
+                    mj: Vec | None = None) -> bool:
+        """:meth:`copyable` for any number of components (the reference form)."""
         T = self.T
         ia = 1.0 / T
         iv = 2.0 / (T * T)
@@ -146,6 +279,22 @@ class SyncFollower:
         if self.copyable(p, v, a, mp, mv, ma, p2, p3, mj):
             self.n_copied += 1
             return tuple(mp), tuple(mv), tuple(ma)
+        return self._close(p, v, a, mp, mv, ma, mj)
+
+    def step1(self, p: float, v: float, a: float, mp: float, mv: float, ma: float,
+              mj: float, p2: float | None = None,
+              p3: float | None = None) -> tuple[float, float, float]:
+        """:meth:`step` of a 1-D channel on floats (the same result)."""
+        if self.copyable1(p, v, a, mp, mv, ma, p2, p3, mj):
+            self.n_copied += 1
+            return mp, mv, ma
+        (x,), (xv,), (xa,) = self._close((p,), (v,), (a,), (mp,), (mv,), (ma,), (mj,))
+        return x, xv, xa
+
+    def _close(self, p: Vec, v: Vec, a: Vec, mp: Vec, mv: Vec, ma: Vec,
+               mj: Vec) -> tuple[Vec, Vec, Vec]:
+        """Eq. 6.2: close the gap to the master within the limits (see the module
+        docstring)."""
         self.n_closing += 1
         n = len(p)
         if n != self.n or self._rk is None:

@@ -196,9 +196,11 @@ class Tracker:
 
     def _check_master(self, m: MotionState) -> TrackError:
         mt, mr = self.params.master_max_trans, self.params.master_max_rot
-        if _norm(m.vel) > mt.vel or abs(m.ang_vel) > mr.vel:
+        x, y, z = m.vel  # (the norms written out: _norm's sums, in its order)
+        if math.sqrt(x * x + y * y + z * z) > mt.vel or abs(m.ang_vel) > mr.vel:
             return TrackError.MASTER_VELOCITY
-        if _norm(m.acc) > mt.acc or abs(m.ang_acc) > mr.acc:
+        x, y, z = m.acc
+        if math.sqrt(x * x + y * y + z * z) > mt.acc or abs(m.ang_acc) > mr.acc:
             return TrackError.MASTER_ACCELERATION
         return TrackError.NONE
 
@@ -209,21 +211,25 @@ class Tracker:
         return (None, None) if a is None or b is None else (a.pos, b.pos)
 
     def _hist_r(self) -> tuple:
+        """Angles of setpoints k-2, k-3 (None until there are two)."""
         a, b = self._hist
-        return (None, None) if a is None or b is None else ((a.ang,), (b.ang,))
+        return (None, None) if a is None or b is None else (a.ang, b.ang)
 
     def update(self, master: MotionState) -> TrackerOutput:
         """Compute the setpoint of the next sample from the master's state at that sample."""
         prev = self._prev  # setpoints k-2, k-3 (self.setpoint is k-1)
         self._hist = prev
         self._prev = (self.setpoint, prev[0])
-        request, self._request = self._request, None
-        if request == "engage" and self.state in (TrackState.OFF, TrackState.DESYNCING):
-            self._start_sync(master)
-        elif request == "disengage" and self.state in (TrackState.SYNCING, TrackState.SYNCED):
-            if self._request_error:
-                self.error = self._request_error
-            self._start_desync(self.sample)
+        request = self._request
+        if request is not None:
+            self._request = None
+            if request == "engage" and self.state in (TrackState.OFF, TrackState.DESYNCING):
+                self._start_sync(master)
+            elif request == "disengage" and self.state in (TrackState.SYNCING,
+                                                           TrackState.SYNCED):
+                if self._request_error:
+                    self.error = self._request_error
+                self._start_desync(self.sample)
         self.sample += 1
         k = self.sample
         state = self.state
@@ -260,17 +266,17 @@ class Tracker:
                 if fo is None:
                     ang, ang_vel, ang_acc = m.ang, m.ang_vel, m.ang_acc
                 else:
-                    (ang,), (ang_vel,), (ang_acc,) = fo[1].step(
-                        (sp.ang,), (sp.ang_vel,), (sp.ang_acc,), (m.ang,), (m.ang_vel,),
-                        (m.ang_acc,), (m.ang_jerk,), *self._hist_r())
+                    ang, ang_vel, ang_acc = fo[1].step1(
+                        sp.ang, sp.ang_vel, sp.ang_acc, m.ang, m.ang_vel, m.ang_acc,
+                        m.ang_jerk, *self._hist_r())
             else:
                 (ang,), (ang_vel,), (ang_acc,), ok = pl_r.step(
                     (m.ang,), (m.ang_vel,), (m.ang_acc,), (m.ang_jerk,))
                 self._synced[1] = ok
                 if ok and fo is not None:
-                    (ang,), (ang_vel,), (ang_acc,) = fo[1].step(
-                        (sp.ang,), (sp.ang_vel,), (sp.ang_acc,), (m.ang,), (m.ang_vel,),
-                        (m.ang_acc,), (m.ang_jerk,), *self._hist_r())
+                    ang, ang_vel, ang_acc = fo[1].step1(
+                        sp.ang, sp.ang_vel, sp.ang_acc, m.ang, m.ang_vel, m.ang_acc,
+                        m.ang_jerk, *self._hist_r())
                 if not ok and self._osc[1].update(k, (m.ang_vel - ang_vel,)):
                     self.error = TrackError.OVER_OSCILLATION
             self.setpoint = MotionState(vec3(pos), vec3(vel), vec3(acc), ang, ang_vel, ang_acc)
@@ -289,11 +295,18 @@ class Tracker:
                 self.setpoint = m
             else:
                 sp = self.setpoint
-                pos, vel, acc = fo[0].step(sp.pos, sp.vel, sp.acc, m.pos, m.vel, m.acc, m.jerk,
-                                           *self._hist_t())
-                (ang,), (ang_vel,), (ang_acc,) = fo[1].step(
-                    (sp.ang,), (sp.ang_vel,), (sp.ang_acc,), (m.ang,), (m.ang_vel,),
-                    (m.ang_acc,), (m.ang_jerk,), *self._hist_r())
+                h2, h3 = self._hist
+                if h2 is None or h3 is None:
+                    pos, vel, acc = fo[0].step(sp.pos, sp.vel, sp.acc, m.pos, m.vel, m.acc,
+                                               m.jerk)
+                    ang, ang_vel, ang_acc = fo[1].step1(sp.ang, sp.ang_vel, sp.ang_acc, m.ang,
+                                                        m.ang_vel, m.ang_acc, m.ang_jerk)
+                else:
+                    pos, vel, acc = fo[0].step(sp.pos, sp.vel, sp.acc, m.pos, m.vel, m.acc,
+                                               m.jerk, h2.pos, h3.pos)
+                    ang, ang_vel, ang_acc = fo[1].step1(sp.ang, sp.ang_vel, sp.ang_acc, m.ang,
+                                                        m.ang_vel, m.ang_acc, m.ang_jerk,
+                                                        h2.ang, h3.ang)
                 self.setpoint = MotionState(vec3(pos), vec3(vel), vec3(acc), ang, ang_vel,
                                             ang_acc)
         elif state == TrackState.DESYNCING:
