@@ -218,6 +218,13 @@ class Location:
         object.__setattr__(self, "ori", tuple(float(x) / n for x in self.ori))
 
     # -- constructors
+    @staticmethod
+    def trusted(pos: Vec3, ori: Quat) -> "Location":
+        """A Location from values known to be valid (3 floats [mm], a unit quaternion to
+        rounding): ``ori`` normalised as the constructor does, without its checks (the
+        per-sample paths, about 4x cheaper)."""
+        return _loc(pos, ori)
+
     @classmethod
     def identity(cls) -> "Location":
         return cls()

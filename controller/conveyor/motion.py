@@ -286,7 +286,7 @@ class VirtualRobot:
                 vel[j] += d.pos[j] * sd
                 acc[j] += d.pos[j] * sdd
             ori = q_mul(ori, d.ori if s == 1.0 else q_power(d.ori, s))
-        self._loc = Location(vec3(pos), ori)
+        self._loc = Location.trusted(vec3(pos), ori)
         self._vel = vec3(vel)
         self._acc = vec3(acc)
 

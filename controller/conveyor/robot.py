@@ -253,7 +253,7 @@ class FrameLink:
         sw = self.swing.setpoint.ang if self.swing is not None else 0.0
         if self.swing is None or (sw == self.offset_swing):
             ang = sp.ang - self.offset_ang
-            return Location(pos, q_axis_angle(self.axis, ang) if ang else Q_IDENTITY)
+            return Location.trusted(pos, q_axis_angle(self.axis, ang) if ang else Q_IDENTITY)
         raw = self._raw_ori(sp.ang, sw)
         off = self._raw_ori(self.offset_ang, self.offset_swing)
         return Location(pos, q_mul(q_conj(off), raw))

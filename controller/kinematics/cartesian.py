@@ -9,6 +9,7 @@ Scale, zero offset and direction of each drive are the counts converter's busine
 from __future__ import annotations
 
 from collections.abc import Sequence
+from operator import itemgetter
 
 from ..errors import ParameterError
 from ..tracking import MotionState
@@ -27,16 +28,18 @@ class CartesianGantry:
                                  f"names out of {', '.join(AXES)}")
         self.axes = axes
         self._slot = tuple(AXES.index(a) for a in axes)
+        #: the axes' values out of (x, y, z, c), as a tuple (one axis: a 1-tuple slice)
+        i0 = self._slot[0]
+        self._pick = itemgetter(*self._slot) if len(self._slot) > 1 else \
+            itemgetter(slice(i0, i0 + 1))
 
     def joints(self, pose: MotionState) -> tuple[float, ...]:
         p = pose.pos
-        full = (p[0], p[1], p[2], pose.ang)
-        return tuple(full[i] for i in self._slot)
+        return self._pick((p[0], p[1], p[2], pose.ang))
 
     def joint_velocities(self, pose: MotionState) -> tuple[float, ...]:
         v = pose.vel
-        full = (v[0], v[1], v[2], pose.ang_vel)
-        return tuple(full[i] for i in self._slot)
+        return self._pick((v[0], v[1], v[2], pose.ang_vel))
 
     def pose(self, joints: Sequence[float]) -> MotionState:
         full = [0.0, 0.0, 0.0, 0.0]

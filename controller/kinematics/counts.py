@@ -89,12 +89,21 @@ class CountsConverter:
 
     def __init__(self, axes: Sequence[AxisScale]) -> None:
         self.axes = tuple(axes)
+        #: per axis (sign, zero, counts_per_unit): AxisScale's conversions written out
+        self._k = tuple((a.sign, a.zero, a.counts_per_unit) for a in self.axes)
 
     def to_counts(self, joints: Sequence[float]) -> tuple[int, ...]:
-        return tuple(a.to_counts(v) for a, v in zip(self.axes, joints))
+        try:
+            out = [round(s * (v - z) * k) for (s, z, k), v in zip(self._k, joints)]
+        except (ValueError, OverflowError):  # NaN/inf: as the axes report it, in order
+            out = [INT32_MAX + 1]
+        for c in out:
+            if not INT32_MIN <= c <= INT32_MAX:  # (the axis names its own error)
+                return tuple([a.to_counts(v) for a, v in zip(self.axes, joints)])
+        return tuple(out)
 
     def from_counts(self, counts: Sequence[int]) -> tuple[float, ...]:
-        return tuple(a.from_counts(c) for a, c in zip(self.axes, counts))
+        return tuple([z + s * c / k for (s, z, k), c in zip(self._k, counts)])
 
     def outside_limits(self, joints: Sequence[float]) -> list[tuple[str, float]]:
         return [(a.name, v) for a, v in zip(self.axes, joints) if not a.min <= v <= a.max]

@@ -67,6 +67,8 @@ class AxisIO:
         self._act_pos = self.tpdo.position(0x6064)
         self._out = [0] * len(self.rpdo.objects)
         self.transport = transport
+        self._pack = self.rpdo.struct.pack
+        self._unpack = self.tpdo.struct.unpack_from
         #: the drive's quick-stop deceleration 6085h [mm/s^2 | deg/s^2] (as configured)
         self.quick_stop_decel = _configured(cfg, node, 0x6085, 0) / scale.counts_per_unit
         self.input: DriveInput | None = None
@@ -85,7 +87,7 @@ class AxisIO:
         if len(data) != self._tp_size and not self.hygiene.check_length(
                 can_id, data, self._tp_size, self._tp_what, t_ns):
             return
-        v = self.tpdo.unpack(data)
+        v = self._unpack(data)
         self.input = DriveInput(v[self._sw_pos], v[self._act_pos], t_ns, self.cycle)
 
     def fresh(self, cycle: int) -> bool:
@@ -95,6 +97,6 @@ class AxisIO:
         out = self._out
         out[self._cw_pos] = controlword
         out[self._target_pos] = target
-        self.transport.send(self.rpdo_cob, self.rpdo.pack(out))
+        self.transport.send(self.rpdo_cob, self._pack(*out))
         self.controlword = controlword
         self.target = target

@@ -48,7 +48,7 @@ from ..config.busload import BusLoad, bus_load, check_bus_load
 from ..config.reactions import Disturbance, Reaction
 from ..io.transport import GuardedTransport, Transport
 from ..protocol import cia402
-from ..protocol.cia402 import State
+from ..protocol.cia402 import State, decode_statusword
 from ..protocol.frames import FrameHygiene
 from .app import Application, ConveyorFollow
 from .axisio import AxisIO
@@ -70,6 +70,10 @@ from .sync import SyncProducer
 
 if TYPE_CHECKING:
     from ..config import ControllerConfig
+
+
+#: the 402 states of a drive fault
+_FAULT_STATES = frozenset((State.FAULT, State.FAULT_REACTION_ACTIVE))
 
 
 class EnableError(CanError):
@@ -206,6 +210,11 @@ class Controller:
         self.reactions = self.tc.reactions
         self.stage_cycles = max(1, math.ceil(self.tc.timeouts.stop_s / cfg.period_s))
         self.stops = [DriveStop(a.label, a.node_id) for a in self.axes]
+        #: per axis (its AxisIO, min, max [mm|deg], quick-stop deceleration) for the limit
+        #: check, and the (joint, x/y/z) index pairs of the translation axes
+        self._limits = [(a, a.scale.min, a.scale.max, a.quick_stop_decel) for a in self.axes]
+        self._xyz = [(j, "xyz".find(name)) for j, name in enumerate(self.kinematics.axes)
+                     if "xyz".find(name) >= 0]
         self._sdo_statusword: dict[int, int] = {}  # node-ID -> 6041h read by SDO (stopping)
         for a in self.axes:
             transport.subscribe(0x580 + a.node_id, self._on_sdo_answer)
@@ -398,7 +407,7 @@ class Controller:
             if self._hb_next <= now:
                 self._hb_next = now + self.cfg.master.heartbeat_producer_ms * 1_000_000
 
-    def _compute(self, k: int, t_sent: int, deadline: int) -> CycleRecord:
+    def _compute(self, k: int, t_sent: int, deadline: int) -> CycleRecord | None:
         t_s = (deadline - self.t0) * 1e-9
         self._supervise(k, t_s)
         event, est = self.master.update(k, (t_sent - deadline) * 1e-9)
@@ -421,7 +430,10 @@ class Controller:
             setpoint = self._run_step(k, t_s, est)
         else:
             self._stop_step(k)
-        return self._record(k, t_s, setpoint)
+        if self.keep_trace or self.on_cycle is not None:
+            return self._record(k, t_s, setpoint)
+        self._tracking_error(k)  # nobody takes the record: only what the cycle itself uses
+        return None
 
     # -- phases ------------------------------------------------------------------------------
     def _enable_step(self, k: int, t_s: float) -> None:
@@ -507,11 +519,10 @@ class Controller:
     def _limit_violation(self, joints, velocities) -> tuple[AxisIO, str] | None:
         """The first axis whose setpoint, or the point where a quick stop from the
         setpoint's velocity would end (6085h deceleration), is outside its limits."""
-        for a, p, v in zip(self.axes, joints, velocities):
-            sc = a.scale
-            decel = a.quick_stop_decel
+        for (a, lo, hi, decel), p, v in zip(self._limits, joints, velocities):
             stop = p + v * abs(v) / (2.0 * decel) if decel > 0 else p
-            if not (sc.min <= p <= sc.max and sc.min <= stop <= sc.max):
+            if not (lo <= p <= hi and lo <= stop <= hi):
+                sc = a.scale
                 unit = sc.unit
                 return a, (f"setpoint {a.axis} = {p:.3f} {unit} at {v:.1f} {unit}/s (a quick "
                            f"stop at {decel:.0f} {unit}/s^2 ends at {stop:.3f}) outside "
@@ -698,17 +709,20 @@ class Controller:
 
     def _supervise(self, k: int, t_s: float) -> None:
         now = self.clock.now_ns()
-        bad, errors = self.hygiene.pop_all()
-        for err in errors:
-            self._internal_error(k, f"{err} (in a receive callback)",
-                                 err.trace.strip().splitlines()[-3].strip()
-                                 if err.trace.count("\n") > 2 else "receive callback")
-        for b in bad:
-            if b.cob_id not in self._bad_reported:  # the first per COB-ID; all are counted
-                self._bad_reported.add(b.cob_id)
-                self.disturbance(k, t_s, b.what, Disturbance.BAD_FRAME, str(b))
-        for source, d, detail in self.actors.pop_all():
-            self.disturbance(k, t_s, source, d, detail)
+        hygiene = self.hygiene
+        if hygiene.queue or hygiene.errors:  # (the queues are empty nearly every cycle)
+            bad, errors = hygiene.pop_all()
+            for err in errors:
+                self._internal_error(k, f"{err} (in a receive callback)",
+                                     err.trace.strip().splitlines()[-3].strip()
+                                     if err.trace.count("\n") > 2 else "receive callback")
+            for b in bad:
+                if b.cob_id not in self._bad_reported:  # the first per COB-ID; all counted
+                    self._bad_reported.add(b.cob_id)
+                    self.disturbance(k, t_s, b.what, Disturbance.BAD_FRAME, str(b))
+        if self.actors.queue:
+            for source, d, detail in self.actors.pop_all():
+                self.disturbance(k, t_s, source, d, detail)
         for label, kind, detail in self.heartbeats.check(now):
             if kind == "node_reset":
                 self.disturbance(k, t_s, label, Disturbance.NODE_RESET, detail)
@@ -716,7 +730,7 @@ class Controller:
                 self.disturbance(k, t_s, label, Disturbance.IO_NODE_LOST, detail)
             else:
                 self.quick_stop(k, t_s, label, kind, detail)
-        for e in self.emcy.pop_all():
+        for e in (self.emcy.pop_all() if self.emcy.queue else ()):
             if e.is_reset:
                 self.events.add(k, t_s, e.label, "emcy", f"{e}: error reset", level=20)
             elif e.node_id in {a.node_id for a in self.axes}:
@@ -733,19 +747,24 @@ class Controller:
                                         f"statusword {a.input.statusword:04X}h ({st.value})",
                                         "(already stopping)")
             return
-        if self.phase is not Phase.ENABLING and self.phase is not Phase.RUNNING:
+        phase = self.phase
+        if phase is not Phase.ENABLING and phase is not Phase.RUNNING:
             return
+        silent = self._drive_silent
         for i, a in enumerate(self.axes):
-            if not a.fresh(k):
-                self._drive_silent[i] += 1
-                if self._drive_silent[i] == self.tc.conveyor.silent_cycles:
-                    self.quick_stop(k, t_s, a.label, "drive_silent",
-                                    f"no TPDO for {self._drive_silent[i]} cycles")
-                continue
-            self._drive_silent[i] = 0
             inp = a.input
-            st = inp.state
-            if st in (State.FAULT, State.FAULT_REACTION_ACTIVE):
+            if inp is None or inp.cycle != k:  # (AxisIO.fresh written out)
+                silent[i] += 1
+                if silent[i] == self.tc.conveyor.silent_cycles:
+                    self.quick_stop(k, t_s, a.label, "drive_silent",
+                                    f"no TPDO for {silent[i]} cycles")
+                continue
+            silent[i] = 0
+            sw = inp.statusword
+            st = decode_statusword(sw)
+            if st is State.OPERATION_ENABLED and not sw & cia402.SW_FOLLOWING_ERROR:
+                continue  # the running drive: nothing to report
+            if st in _FAULT_STATES:
                 if self.phase is Phase.RUNNING or (a.hold is not None):
                     self._faults_reported.add(a.node)
                     self.quick_stop(k, t_s, a.label, "drive_fault",
@@ -763,13 +782,8 @@ class Controller:
     def _record(self, k: int, t_s: float, setpoint: tuple[float, ...] | None) -> CycleRecord:
         tr = self.tracker
         out = self.last_output if self.phase is Phase.RUNNING else None
-        actual = self.counts.from_counts([a.input.actual if a.input is not None else 0
-                                          for a in self.axes])
-        err = 0.0
-        m_k = self._master_for.pop(k, None)  # the master predicted for this SYNC
-        if m_k is not None and tr is not None and tr.state is not TrackState.OFF:
-            err = self._translation_error(actual, m_k)
-        self.last_tracking_error = err
+        actual = self._actual()
+        err = self._tracking_error(k, actual)
         master = self.master
         est = master.last_estimate
         return CycleRecord(
@@ -785,6 +799,24 @@ class Controller:
             statuswords=tuple([a.input.statusword if a.input is not None else 0
                                for a in self.axes]),
             tracking_error=err, sync_late_us=0.0, compute_us=0.0)
+
+    def _actual(self) -> tuple[float, ...]:
+        """The drives' last actual positions [mm | deg] (0 counts before a TPDO)."""
+        return self.counts.from_counts([a.input.actual if a.input is not None else 0
+                                        for a in self.axes])
+
+    def _tracking_error(self, k: int, actual: tuple[float, ...] | None = None) -> float:
+        """``last_tracking_error`` of cycle ``k``: |actual - the master predicted for this
+        SYNC| [mm] while the tracker is not OFF, else 0 (``actual``: the drives' positions
+        when the caller has them)."""
+        err = 0.0
+        m_k = self._master_for.pop(k, None)  # the master predicted for this SYNC
+        tr = self.tracker
+        if m_k is not None and tr is not None and tr.state is not TrackState.OFF:
+            err = self._translation_error(actual if actual is not None else self._actual(),
+                                          m_k)
+        self.last_tracking_error = err
+        return err
 
     def _track_state(self, tr: Tracker | None) -> int:
         """Tracker state of the cycle record: the application's if it has one (the demo's
@@ -807,11 +839,9 @@ class Controller:
         """|actual - master| over the translation axes x, y, z [mm]."""
         p = master.pos
         s = 0.0
-        for name, value in zip(self.kinematics.axes, actual):
-            i = "xyz".find(name)
-            if i >= 0:
-                d = value - p[i]
-                s += d * d
+        for j, i in self._xyz:
+            d = actual[j] - p[i]
+            s += d * d
         return math.sqrt(s)
 
     # -- running -----------------------------------------------------------------------------

@@ -91,12 +91,20 @@ _DECODE = (
 )
 
 
-def decode_statusword(statusword: int) -> State | None:
-    """The state a statusword shows, or None for an invalid pattern."""
+def _decode(statusword: int) -> State | None:
     for mask, value, state in _DECODE:
         if statusword & mask == value:
             return state
     return None
+
+
+#: every mask of _DECODE is within 6Fh: the state of each pattern of those bits, once
+_STATE_OF_BITS = tuple(_decode(bits) for bits in range(0x70))
+
+
+def decode_statusword(statusword: int) -> State | None:
+    """The state a statusword shows, or None for an invalid pattern."""
+    return _STATE_OF_BITS[statusword & 0x6F]
 
 
 # -- controlword commands (mask, value) -----------------------------------------------------

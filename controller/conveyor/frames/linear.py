@@ -75,4 +75,4 @@ class LinearGeometry:
                 p[j] += d[j] * x
                 v[j] += d[j] * xd
                 a[j] += d[j] * xdd
-        return FramePoint(Location(vec3(p), self.origin.ori), vec3(v), vec3(a))
+        return FramePoint(Location.trusted(vec3(p), self.origin.ori), vec3(v), vec3(a))
