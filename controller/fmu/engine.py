@@ -352,6 +352,26 @@ _VR_ENGAGE = VR["engage"]
 BULK_BASE = 1 << 30
 _BULK_INPUT_SET = frozenset(BULK_BASE + i for i, row in enumerate(VARIABLES)
                             if row[2] == "input")
+#: the bulk references of every input and every output, in order: the front library's
+#: usual calls (all inputs set, all outputs read): the inputs as the contiguous runs of ``v``
+#: they fill (a slice of ``v`` <- a slice of the values), the outputs by one itemgetter
+_BULK_ALL_INPUTS = [BULK_BASE + i for i, row in enumerate(VARIABLES) if row[2] == "input"]
+_BULK_ALL_OUTPUTS = [BULK_BASE + i for i, row in enumerate(VARIABLES) if row[2] == "output"]
+
+
+def _runs(indices: list[int]) -> list[tuple[slice, slice]]:
+    """(slice of v, slice of the values) for each run of consecutive ``indices``."""
+    out: list[tuple[slice, slice]] = []
+    start = 0
+    for j in range(1, len(indices) + 1):
+        if j == len(indices) or indices[j] != indices[j - 1] + 1:
+            out.append((slice(indices[start], indices[j - 1] + 1), slice(start, j)))
+            start = j
+    return out
+
+
+_IN_RUNS = _runs([vr - BULK_BASE for vr in _BULK_ALL_INPUTS])
+_get_all_outputs = itemgetter(*[vr - BULK_BASE for vr in _BULK_ALL_OUTPUTS])
 #: the non-Real inputs and their type (a bulk set carries every value as a float)
 _BULK_CONVERT = [(i, bool if row[1] == "Boolean" else int) for i, row in enumerate(VARIABLES)
                  if row[2] == "input" and row[1] != "Real"]
@@ -605,11 +625,15 @@ class TrackerEngine:
 
     def set_bulk(self, vrs, values) -> None:
         """The front library's bulk set of inputs (``BULK_BASE`` + vr, as floats)."""
-        if not _BULK_INPUT_SET.issuperset(vrs):
-            raise TypeError(f"valueReferences {list(vrs)} are not bulk input references")
         v = self.v
-        for vr, value in zip(vrs, values):
-            v[vr - BULK_BASE] = value
+        if vrs == _BULK_ALL_INPUTS and len(values) == len(vrs):  # every input: by runs
+            for dst, src in _IN_RUNS:
+                v[dst] = values[src]
+        else:
+            if not _BULK_INPUT_SET.issuperset(vrs):
+                raise TypeError(f"valueReferences {list(vrs)} are not bulk input references")
+            for vr, value in zip(vrs, values):
+                v[vr - BULK_BASE] = value
         for i, convert in _BULK_CONVERT:
             v[i] = convert(v[i])
 
@@ -619,6 +643,8 @@ class TrackerEngine:
         if self.tracker is None:
             self.refresh_initial()
         v = self.v
+        if vrs == _BULK_ALL_OUTPUTS:  # every output: one itemgetter
+            return list(_get_all_outputs(v))
         if min(vrs) < BULK_BASE or max(vrs) >= BULK_BASE + len(v):
             raise TypeError(f"valueReferences {list(vrs)} are not bulk references")
         return [v[vr - BULK_BASE] for vr in vrs]

@@ -43,6 +43,7 @@ from .vec import Vec, vec3
 #: None for the default straight-line stops.  The conveyor model supplies arcs this way.
 DesyncBuilder = Callable[["Tracker"], "tuple[Desync, Desync] | None"]
 
+_SYNCING, _SYNCED = TrackState.SYNCING, TrackState.SYNCED
 _IMFS = {TrackState.OFF: Imfs.NOT_SYNCHRONIZED, TrackState.SYNCING: Imfs.NOT_SYNCHRONIZED,
          TrackState.SYNCED: Imfs.SYNCHRONIZED, TrackState.DESYNCING: Imfs.DESYNCING}
 
@@ -238,7 +239,7 @@ class Tracker:
         vel: Vec
         acc: Vec
 
-        if state in (TrackState.SYNCING, TrackState.SYNCED):
+        if state is _SYNCED or state is _SYNCING:
             err = self._check_master(master)
             if err:
                 self.error = err
@@ -288,8 +289,8 @@ class Tracker:
                 self.error = TrackError.APPROACH_TIMEOUT
             if self.error and self.state == TrackState.SYNCING:
                 self._start_desync(k)
-        elif state == TrackState.SYNCED:
-            m = self._shifted(master)
+        elif state is _SYNCED:
+            m = master if self.mode != Mode.RELATIVE else self._shifted(master)
             fo = self._follow
             if fo is None:
                 self.setpoint = m
