@@ -123,6 +123,11 @@ class LinkState(IntEnum):
     DONE = 4  #: detached
 
 
+#: a link's state from its tracker's (OFF: waiting for an item)
+_LINK_STATE = {TrackState.OFF: LinkState.WAITING, TrackState.SYNCING: LinkState.SYNCING,
+               TrackState.SYNCED: LinkState.SYNCED, TrackState.DESYNCING: LinkState.DESYNCING}
+
+
 class EventKind(StrEnum):
     """What an :class:`Event` is about (a ``str``: traces and summaries show the value)."""
 
@@ -224,10 +229,7 @@ class FrameLink:
     def state(self) -> LinkState:
         if self.done:
             return LinkState.DONE
-        st = self.track_state
-        if st == TrackState.OFF:
-            return LinkState.WAITING
-        return LinkState(int(st))
+        return _LINK_STATE[self.track_state]
 
     @property
     def track_state(self) -> TrackState:
@@ -1047,6 +1049,7 @@ class RobotGroup:
         a = self._active()
         out = RobotOutput(k, loc, self.velocity, v.location, self.imfs, self._slave,
                           a.frame.name if a is not None else None,
-                          tuple((lk.frame.name, lk.state) for lk in self.links), tuple(ev), error)
+                          tuple([(lk.frame.name, lk.state) for lk in self.links]), tuple(ev),
+                          error)
         self.last_output = out
         return out

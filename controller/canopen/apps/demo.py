@@ -417,7 +417,9 @@ class PickPlace:
             ang = -ang
         prev = self._prev
         vel = vec3(out.velocity)
-        acc = vec3((a - b) / T for a, b in zip(vel, prev.vel))
+        v0, v1, v2 = vel
+        u0, u1, u2 = prev.vel
+        acc = ((v0 - u0) / T, (v1 - u1) / T, (v2 - u2) / T)
         ang_vel = (ang - prev.ang) / T
         m = MotionState(vec3(loc.pos), vel, acc, ang, ang_vel, (ang_vel - prev.ang_vel) / T)
         self._prev = m

@@ -58,6 +58,8 @@ EMCY_FOLLOWING_ERROR = 0x8611
 EMCY_HEARTBEAT = 0x8130
 EMCY_GENERIC = 0x1000
 
+#: the parameter cache's key of the interpolation period dt_s [s]
+_DT_KEY = (0x60C2, -1)
 HM_START = 1 << 4  #: controlword bit 4 in homing mode: homing operation start
 HM_ATTAINED = 1 << 12  #: statusword bit 12 in homing mode: homing attained
 HM_ERROR = 1 << 13  #: statusword bit 13 in homing mode: homing error
@@ -86,7 +88,8 @@ class SimDrive(SimNode):
         self._probe_armed = False
         self._probe_toggle = False
         self._last_step_ns = clock.now_ns()
-        self._params: dict[tuple[int, int], int] = {}
+        #: configuration values by (index, sub) and the interpolation period (_DT_KEY)
+        self._params: dict[tuple[int, int], Any] = {}
         #: reported position - physical position [counts] (changed by the homing mode)
         self._home_shift = 0.0
         #: homing mode: None (not started), "run", "done" or "error"
@@ -107,8 +110,12 @@ class SimDrive(SimNode):
 
     @property
     def dt_s(self) -> float:
-        dt = self.param(0x60C2, 1) * 10.0 ** self.param(0x60C2, 2)
-        return dt if dt > 0 else 0.002
+        """The interpolation period 60C2h [s] (cached with the parameters)."""
+        dt = self._params.get(_DT_KEY)
+        if dt is None:
+            dt = self.param(0x60C2, 1) * 10.0 ** self.param(0x60C2, 2)
+            dt = self._params[_DT_KEY] = dt if dt > 0 else 0.002
+        return dt
 
     @property
     def mode(self) -> int:

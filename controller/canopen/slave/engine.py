@@ -283,7 +283,14 @@ class SlaveEngine:
         return [0] if isinstance(obj, ODVariable) else list(obj.subindices)
 
     def has(self, index: int, sub: int = 0) -> bool:
-        return odm.variable(self.od, index, sub) is not None
+        key = (index, sub)
+        v = self._vars.get(key)  # (the object dictionary's structure does not change)
+        if v is None:
+            v = odm.variable(self.od, index, sub)
+            if v is None:
+                return False
+            self._vars[key] = v
+        return True
 
     def _codec(self, index: int, sub: int) -> tuple[struct.Struct | None, ODVariable]:
         key = (index, sub)
@@ -787,17 +794,27 @@ class SlaveEngine:
     def next_timer_ns(self) -> int | None:
         if not self.listening():
             return None
-        due = [t for t in (self._boot_at, self._hb_next, self.device_timer_ns())
-               if t is not None]
+        # (the earliest of the timers, without a list: asked after every frame batch)
+        best = self._boot_at
+        t = self._hb_next
+        if t is not None and (best is None or t < best):
+            best = t
+        t = self.device_timer_ns()
+        if t is not None and (best is None or t < best):
+            best = t
         for c in self._consumers.values():
             if c.last_ns is not None and not c.lost:
-                due.append(c.last_ns + c.timeout_ns)
+                t = c.last_ns + c.timeout_ns
+                if best is None or t < best:
+                    best = t
         if self.nmt_state is Nmt.OPERATIONAL and self.may_send("pdo"):
             for pdo in self.tpdos:
                 if pdo.transmission >= 254 and pdo.event_ns:
                     base = pdo.last_sent_ns if pdo.last_sent_ns is not None else 0
-                    due.append(base + pdo.event_ns)
-        return min(due) if due else None
+                    t = base + pdo.event_ns
+                    if best is None or t < best:
+                        best = t
+        return best
 
     def on_timer(self, now: int) -> None:
         if not self.listening():
