@@ -407,12 +407,12 @@ def test_exception_in_step_is_logged_with_traceback(tracker_fmu, monkeypatch, ca
         t_saved = fmu.time
         # the FMU runs its private copy of the core: break that one
         fmu_tracker = bundled_module(tracker_fmu, "tracking.tracker").Tracker
-        real_update = fmu_tracker.update
+        real_update = fmu_tracker.advance  # (the step of update; the FMU's step calls it)
 
         def broken(self, master):
             raise RuntimeError("injected failure in Tracker.update")
 
-        monkeypatch.setattr(fmu_tracker, "update", broken)
+        monkeypatch.setattr(fmu_tracker, "advance", broken)
         m, e = scenario(150)
         with caplog.at_level(logging.ERROR, logger="cantrack.fmu"):
             with pytest.raises(FMICallException) as exc:
@@ -424,7 +424,7 @@ def test_exception_in_step_is_logged_with_traceback(tracker_fmu, monkeypatch, ca
         assert "RuntimeError: injected failure in Tracker.update" in text
         assert "unknown error" not in text
         assert any("injected failure" in r.getMessage() for r in caplog.records)
-        monkeypatch.setattr(fmu_tracker, "update", real_update)
+        monkeypatch.setattr(fmu_tracker, "advance", real_update)
         with pytest.raises(FMICallException):
             fmu.step(m, e, T)  # refused: failed earlier
         assert "failed earlier" in fmu.messages[-1][2]

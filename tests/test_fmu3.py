@@ -135,7 +135,8 @@ def test_fmi3_exception_gives_error_with_traceback(fmu3, monkeypatch, caplog):
         def broken(self, master):
             raise RuntimeError("injected failure")
 
-        monkeypatch.setattr(bundled_module(fmu3, "tracking.tracker").Tracker, "update", broken)
+        # (Tracker.advance: the step of Tracker.update, what the FMU's step calls)
+        monkeypatch.setattr(bundled_module(fmu3, "tracking.tracker").Tracker, "advance", broken)
         with caplog.at_level(logging.DEBUG, logger="cantrack.fmu"):
             with pytest.raises(FMICallException) as exc:
                 f.run(conveyor_scenario(T), 10, 1)

@@ -830,24 +830,27 @@ class TrackerEngine:
         if self.conditioners is not None:
             return self._step_encoder(n, tracker, master_values)
         mx, my, mz, mvx, mvy, mvz, max_, may, maz, mc, mvc, mac = master_values
-        update = tracker.update
+        assert tracker is not None  # initialised (before it a step fails like an exception)
+        advance = tracker.advance  # (update without its output record: read back below)
         if n == 1:
             # MotionState(...).extrapolated(T) written out (the same operations in the same
             # order: bit-identical), one MotionState per sample instead of two
             h = 0.5 * T * T
-            out = update(MotionState(
+            advance(MotionState(
                 (mx + mvx * T + max_ * h, my + mvy * T + may * h, mz + mvz * T + maz * h),
                 (mvx + max_ * T, mvy + may * T, mvz + maz * T), (max_, may, maz),
                 mc + mvc * T + mac * h, mvc + mac * T, mac))
         else:
             master = MotionState((mx, my, mz), (mvx, mvy, mvz), (max_, may, maz), mc, mvc, mac)
             for i in range(1, n + 1):
-                out = update(master.extrapolated(i * T))
-        sp = out.setpoint
+                advance(master.extrapolated(i * T))
+        sp = tracker.setpoint
         p, vel, a = sp.pos, sp.vel, sp.acc
+        state = tracker.state
         # the enums are ints (IntEnum): stored as they are
         v[_OUT_FIRST:_OUT_END] = (p[0], p[1], p[2], sp.ang, vel[0], vel[1], vel[2], sp.ang_vel,
-                                  a[0], a[1], a[2], sp.ang_acc, out.imfs, out.state, out.error)
+                                  a[0], a[1], a[2], sp.ang_acc, tracker.imfs, state,
+                                  tracker.error)
 
     def _step_encoder(self, n: int, tracker: Tracker | None, master_values: tuple) -> None:
         """The samples of a step with raw encoder inputs (master_input=1): the step's

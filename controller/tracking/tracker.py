@@ -218,6 +218,15 @@ class Tracker:
 
     def update(self, master: MotionState) -> TrackerOutput:
         """Compute the setpoint of the next sample from the master's state at that sample."""
+        synced_now = self.advance(master)
+        state = self.state
+        return TrackerOutput(self.setpoint, state, _IMFS[state], self.error, self.sample,
+                             synced_now)
+
+    def advance(self, master: MotionState) -> bool:
+        """:meth:`update` without its output record (a shell that reads ``setpoint``,
+        ``state``, ``imfs`` and ``error`` itself: the FMU's step); True on the sample where
+        the approach ended (``TrackerOutput.synchronized_now``)."""
         prev = self._prev  # setpoints k-2, k-3 (self.setpoint is k-1)
         self._hist = prev
         self._prev = (self.setpoint, prev[0])
@@ -323,6 +332,5 @@ class Tracker:
         else:  # OFF: the robot continues its own motion
             self.setpoint = self.setpoint.extrapolated(self.T)
 
-        return TrackerOutput(self.setpoint, self.state, _IMFS[self.state], self.error, k,
-                             synced_now)
+        return synced_now
 
