@@ -295,7 +295,10 @@ class FrameLink:
     def _make_target(self) -> MotionState:
         p, ref, o = self.point, self.ref, self.offset_pos
         assert p is not None and ref is not None  # the caller checked both
-        pos = vec3(h - r + q for h, r, q in zip(p.here.pos, ref.pos, o))
+        h0, h1, h2 = p.here.pos
+        r0, r1, r2 = ref.pos
+        q0, q1, q2 = o
+        pos = (h0 - r0 + q0, h1 - r1 + q1, h2 - r2 + q2)
         return MotionState(pos, p.vel, p.acc, p.ang + self.twist_deg + self.offset_ang,
                            p.ang_vel, p.ang_acc)
 

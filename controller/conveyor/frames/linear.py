@@ -55,11 +55,11 @@ class LinearGeometry:
 
     def coords(self, values: Sequence[float], trigger: Sequence[float]) -> tuple[float, ...]:
         """DOF coordinates [mm] of source ``values`` for an item triggered at ``trigger``."""
-        return tuple(k * (m - t) for k, m, t in zip(self.scales, values, trigger))
+        return tuple([k * (m - t) for k, m, t in zip(self.scales, values, trigger)])
 
     def rates(self, rates: Sequence[float]) -> tuple[float, ...]:
         """Source rates (units/s or units/s^2) to DOF rates (mm/s, mm/s^2)."""
-        return tuple(k * r for k, r in zip(self.scales, rates))
+        return tuple([k * r for k, r in zip(self.scales, rates)])
 
     def zero(self, dr_mm: float = 0.0, item: object = None) -> Location:
         """MF.zero: the item at its trigger (``dr_mm`` is ignored on a linear frame)."""
@@ -67,6 +67,16 @@ class LinearGeometry:
 
     def point(self, c: Sequence[float], cd: Sequence[float], cdd: Sequence[float],
               dr_mm: float = 0.0, item: object = None) -> FramePoint:
+        if len(self.directions) == 1 and len(c) == 1:  # one DOF: the loop written out
+            (d0, d1, d2), = self.directions
+            x, = c
+            xd, = cd
+            xdd, = cdd
+            o0, o1, o2 = self.origin.pos
+            return FramePoint(Location.trusted((o0 + d0 * x, o1 + d1 * x, o2 + d2 * x),
+                                               self.origin.ori),
+                              (0.0 + d0 * xd, 0.0 + d1 * xd, 0.0 + d2 * xd),
+                              (0.0 + d0 * xdd, 0.0 + d1 * xdd, 0.0 + d2 * xdd))
         p = list(self.origin.pos)
         v = [0.0, 0.0, 0.0]
         a = [0.0, 0.0, 0.0]
