@@ -276,7 +276,8 @@ class SyncFollower:
         """The setpoint of this sample from the last one (p, v, a), the positions of the two
         before it (``p2``, ``p3``; None: not known) and the master of this sample
         (mp, mv, ma, mj)."""
-        if self.copyable(p, v, a, mp, mv, ma, p2, p3, mj):
+        if (self._copyable3(p, v, a, mp, mv, ma, p2, p3, mj) if len(p) == 3
+                else self.copyable(p, v, a, mp, mv, ma, p2, p3, mj)):
             self.n_copied += 1
             return tuple(mp), tuple(mv), tuple(ma)
         return self._close(p, v, a, mp, mv, ma, mj)
