@@ -36,13 +36,13 @@ def booted_follow(tmp_path, stepped_controller):
     two-drive bus (``text``, else the default bus.yml) booted in stepped time, following
     the belt point at ``FOLLOW_OFFSET`` from cycle 10."""
     from controller.canopen.config import load_config
-    from controller.canopen.master.app import ConveyorFollow
+    from controller.canopen.apps.follow import ConveyorFollow
     from controller.canopen.testing import bus_yml, load
 
     def _make(text: str | None = None, end_cycle: int = 600, **kw):
         cfg = load_config(bus_yml(tmp_path, text=text)) if text else load(tmp_path)
         app = ConveyorFollow(10, None, FOLLOW_OFFSET, end_cycle=end_cycle)
-        world, ctl = stepped_controller(cfg, app=app, **kw)
+        world, ctl = stepped_controller(cfg, source=app, **kw)
         ctl.boot()
         return world, ctl
     return _make

@@ -13,7 +13,7 @@ import can
 import pytest
 
 from controller.canopen.config import load_config
-from controller.canopen.master.app import ConveyorFollow
+from controller.canopen.apps.follow import ConveyorFollow
 from controller.canopen.protocol.cia402 import State
 from controller.canopen.testing import bus_yml, load, stepped
 
@@ -277,17 +277,17 @@ def test_boot_error_names_the_emcy_sent_before_refusing_start(tmp_path):
 # the last line of defence: an unexpected exception inside the cycle
 
 class _Boom(ConveyorFollow):
-    """The application raises in cycle ``at`` (a bug injected into the cycle)."""
+    """The source raises in cycle ``at`` (a bug injected into the cycle)."""
 
     def __init__(self, at: int, times: int = 1) -> None:
         super().__init__(10, None, OFFSET, end_cycle=600)
         self.at, self.times = at, times
 
-    def update(self, ctl, k, est):
-        if k >= self.at and self.times > 0:
+    def step(self, ctx):
+        if ctx.cycle >= self.at and self.times > 0:
             self.times -= 1
             raise ZeroDivisionError("injected")
-        return super().update(ctl, k, est)
+        return super().step(ctx)
 
 
 def test_unexpected_exception_in_the_cycle_stops_the_drives_and_fails(tmp_path):
@@ -297,7 +297,7 @@ def test_unexpected_exception_in_the_cycle_stops_the_drives_and_fails(tmp_path):
     with world:
         ctl.boot()
         with pytest.raises(CycleError, match=r"internal error in cycle \d+: ZeroDivisionError"
-                                             r": injected \(test_bus_faults.py:\d+ in update\)"):
+                                             r": injected \(test_bus_faults.py:\d+ in step\)"):
             ctl.run(max_cycles=2000)
         (ev,) = ctl.events.of_kind("internal_error")
         assert ev.reaction == "quick stop of all drives"
@@ -344,7 +344,7 @@ _RUN_WITH_BUG = """
 import sys
 from controller.canopen.io.clock import RealtimeClock
 from controller.canopen.config import load_config
-from controller.canopen.master import app
+from controller.canopen.apps import follow
 from controller.canopen.slave.rack import DeviceRack
 from controller.canopen.io.transport import DeviceThread, virtual_bus
 from controller.cli import run as cmd_run
@@ -352,17 +352,12 @@ cfg = load_config(sys.argv[1])
 clock = RealtimeClock()
 rack = DeviceRack.from_config(cfg, virtual_bus("bug"), clock)
 th = DeviceThread(rack, clock).start()
-real = app.ConveyorFollow.update
-def update(self, ctl, k, est):
-    if k == ctl.app_start + 20:
+real = follow.ConveyorFollow.step
+def step(self, ctx):
+    if ctx.cycle == self.start_cycle + 20:
         raise ZeroDivisionError("injected")
-    return real(self, ctl, k, est)
-app.ConveyorFollow.update = update
-orig_start = app.ConveyorFollow.start
-def start(self, ctl, k):
-    ctl.app_start = k
-    return orig_start(self, ctl, k)
-app.ConveyorFollow.start = start
+    return real(self, ctx)
+follow.ConveyorFollow.step = step
 try:
     rc = cmd_run.main([sys.argv[1], "-i", "virtual", "-c", "bug", "-q", "--duration", "3",
                        "--report", sys.argv[2]])

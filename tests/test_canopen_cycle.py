@@ -7,7 +7,7 @@ import struct
 
 import pytest
 
-from controller.canopen.master.app import ConveyorFollow
+from controller.canopen.apps.follow import ConveyorFollow
 from controller.canopen.master.cycle import Phase
 from controller.canopen.protocol import cia402
 from controller.canopen.protocol.cia402 import State
@@ -151,3 +151,8 @@ def test_statusword_decoding_is_total():
         cia402.decode_statusword(sw)  # never raises
     assert cia402.decode_statusword(0x0237) is State.OPERATION_ENABLED
     assert cia402.decode_statusword(0x0250) is State.SWITCH_ON_DISABLED
+    # the look-up table is the CiA 402 table (mask, value per state) for every statusword
+    for sw in range(0x10000):
+        want = [st for mask, value, st in cia402._DECODE if sw & mask == value]
+        assert cia402.decode_statusword(sw) is (want[0] if want else None), hex(sw)
+

@@ -394,7 +394,7 @@ def test_can_shell_with_conditioning_equals_the_offline_core(tmp_path):
     bit; the tracking is within the sync limits and no outlier is reported."""
     import struct
 
-    from controller.canopen.master.app import ConveyorFollow, belt_frame
+    from controller.canopen.apps.follow import ConveyorFollow, belt_frame
     from controller.canopen.testing import stepped
     from controller.kinematics import CountsConverter, EncoderScale, create
     from controller.tracking import Limits, MasterEstimate, Tracker
@@ -459,7 +459,7 @@ def test_can_shell_glitch_is_an_outlier_and_a_jump_loses_the_master(tmp_path, pe
     """A 5 mm one-sample glitch of the encoder while SYNCED: a master_outlier event naming
     its size, the tracker stays SYNCED without error.  A permanent 20 mm jump: max_outliers
     outliers, then master_lost and the de-sync with MASTER_LOST."""
-    from controller.canopen.master.app import ConveyorFollow
+    from controller.canopen.apps.follow import ConveyorFollow
     from controller.canopen.testing import stepped
     from controller.tracking import TrackError, TrackState
 
@@ -474,7 +474,7 @@ def test_can_shell_glitch_is_an_outlier_and_a_jump_loses_the_master(tmp_path, pe
 
     def sample(t_ns):
         c = orig(t_ns)
-        if ctl.tracker is not None and ctl.tracker.state == TrackState.SYNCED:
+        if ctl.source.tracker is not None and ctl.source.tracker.state == TrackState.SYNCED:
             hit["n"] += 1
             if hit["n"] >= 100 and (permanent or hit["n"] == 100):
                 c += glitch
@@ -494,7 +494,7 @@ def test_can_shell_glitch_is_an_outlier_and_a_jump_loses_the_master(tmp_path, pe
     if permanent:
         assert len(outliers) == cfg.tracking.conveyor.conditioning.max_outliers - 1
         assert "master_lost" in kinds
-        assert ctl.tracker.error == TrackError.MASTER_LOST
+        assert ctl.source.tracker.error == TrackError.MASTER_LOST
     else:
         assert len(outliers) == 1 and "master_lost" not in kinds
-        assert ctl.tracker.state == TrackState.SYNCED and ctl.tracker.error == TrackError.NONE
+        assert ctl.source.tracker.state == TrackState.SYNCED and ctl.source.tracker.error == TrackError.NONE

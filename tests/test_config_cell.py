@@ -11,6 +11,7 @@ from pathlib import Path
 
 import pytest
 
+from controller.canopen.apps.follow import ConveyorFollow
 from controller.canopen.config import load_config, parse_config
 from controller.canopen.config.cell import robot_kinematics
 from controller.canopen.master.cycle import Controller
@@ -153,7 +154,7 @@ def test_the_bus_controller_refuses_a_cell_clearly():
     """Until the cell runs on the bus: a clear error, not one kinematics over both robots."""
     cfg = load_config(BUS)
     with pytest.raises(ConfigError, match="cell .* not run by the bus controller") as info:
-        Controller(cfg, transport=None)  # type: ignore[arg-type]
+        Controller(cfg, None, ConveyorFollow())  # type: ignore[arg-type]
     assert info.value.key == ".tracking.cell" and info.value.file == cfg.file
 
 

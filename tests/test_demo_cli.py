@@ -18,7 +18,7 @@ import can
 
 from controller.canopen.config import load_config
 from controller.canopen.io.transport import RealtimeTransport, virtual_bus
-from controller.canopen.master.app import ConveyorFollow
+from controller.canopen.apps.follow import ConveyorFollow
 from controller.canopen.master.cycle import Controller
 from controller.canopen.testing import bus_yml, bus_yml_text
 from controller.cli import demo as cmd_demo

@@ -37,7 +37,7 @@ def _run(demo, extra_trigger=False, max_cycles=8000, watch=None):
                 continue
             if watch is not None:
                 watch(ctl, app)
-            if app.done(ctl, ctl.k - 1):
+            if ctl.source_done:
                 break
             if extra_trigger and not triggered and app.eye.detected == 1:
                 triggered = True  # a second item right behind the first (a PLC trigger)
@@ -49,13 +49,13 @@ def test_demo_runs_on_the_conveyor_model():
     seen = {"setpoint_ok": 0, "steps": set(), "buffer_max": 0}
 
     def watch(ctl, app):
-        seen["steps"].add(app.step)
+        seen["steps"].add(app.stage)
         r = app.robot
         if r is None or r.last_output is None or ctl.last_output is None:
             return
         seen["buffer_max"] = max(seen["buffer_max"], len(r.buffer))
         # the controller's setpoint is the robot group's (the tracker passes it through)
-        if ctl.tracker.state.name == "SYNCED":
+        if ctl.source.tracker.state.name == "SYNCED":
             d = max(abs(a - b) for a, b in zip(ctl.last_output.setpoint.pos,
                                                r.last_output.setpoint.pos))
             assert d < 1e-9
@@ -139,7 +139,7 @@ def test_item_types_from_bus_yml_the_robot_picks_only_its_types(tmp_path):
         ctl.start()
         app.eye = PhotoEye(world.device(cfg.tracking.conveyor.node).profile, cfg.demo,
                            world.clock.now_ns() * 1e-9)
-        while ctl.k < 20000 and not app.done(ctl, ctl.k - 1):
+        while ctl.k < 20000 and not ctl.source_done:
             ctl.step()
     items = app.items()
     assert [i.item_type for i in items] == [1, 2, 1, 2, 1, 2]

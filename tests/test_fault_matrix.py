@@ -17,7 +17,7 @@ from pathlib import Path
 import can
 import pytest
 
-from controller.canopen.master.app import ConveyorFollow
+from controller.canopen.apps.follow import ConveyorFollow
 from controller.canopen.master.cycle import Controller
 from controller.canopen.protocol.cia402 import State
 from controller.canopen.testing import load, stepped
@@ -51,10 +51,10 @@ class Intruder:
 
 
 class _Boom(ConveyorFollow):
-    def update(self, ctl, k, est):
-        if ctl.clock.now_ns() >= T_FAULT * 1e9:
+    def step(self, ctx):
+        if ctx.t_ns >= T_FAULT * 1e9:
             raise ZeroDivisionError("injected")
-        return super().update(ctl, k, est)
+        return super().step(ctx)
 
 
 def _random(world, intruder) -> None:

@@ -21,7 +21,7 @@ import pytest
 from canopen.sdo import SdoAbortedError
 
 from controller.canopen.config.plc import CommanderLoss, PlcConfig, TriggerOverflow
-from controller.canopen.master.app import ConveyorFollow
+from controller.canopen.apps.follow import ConveyorFollow
 from controller.canopen.master.cycle import Controller, Phase
 from controller.canopen.master.plc_node import attach_plc_node
 from controller.canopen.protocol import od as odm
@@ -121,7 +121,7 @@ def _write(remote, index, sub, value):
 def _running(ctl):
     for _ in range(400):
         ctl.step()
-        if ctl.phase is Phase.RUNNING and ctl.tracker.state is TrackState.SYNCED:
+        if ctl.phase is Phase.RUNNING and ctl.source.tracker.state is TrackState.SYNCED:
             return
     raise AssertionError("the tracker did not synchronise")
 
@@ -134,14 +134,14 @@ def test_without_the_commanders_heartbeat_every_motion_write_is_refused(tmp_path
             assert _abort(_write(remote, index, None, value)) == 0x08000021
         assert _abort(_write(remote, 0x2010, 1, 500.0)) == 0x08000021
         ctl.step()
-        assert ctl.tracker.state is TrackState.SYNCED  # nothing happened
+        assert ctl.source.tracker.state is TrackState.SYNCED  # nothing happened
         assert remote.sdo[0x2012].raw == 4
         ev = ctl.events.of_kind("plc_no_commander")
         assert len(ev) == 1 and "node 32" in ev[0].detail and "refused" in ev[0].reaction
         # RPDO1 (engage 0, trigger 1) from anyone: dropped, counted
         remote.network.send_message(0x200 + NODE, bytes([0, 1]))
         ctl.step()
-        assert ctl.tracker.state is TrackState.SYNCED and node.triggers == 0
+        assert ctl.source.tracker.state is TrackState.SYNCED and node.triggers == 0
         assert remote.sdo[0x2012].raw == 6
         assert remote.sdo[0x2005].raw == 0 and remote.sdo[0x2004].raw == 0
 
@@ -151,7 +151,7 @@ def test_no_commander_configured_refuses_motion_writes(tmp_path):
         _running(ctl)
         assert _abort(_write(remote, 0x2005, None, 0)) == 0x08000021
         assert remote.sdo[0x2020][1].raw == 0
-        assert ctl.tracker.state is TrackState.SYNCED
+        assert ctl.source.tracker.state is TrackState.SYNCED
 
 
 def test_with_the_commanders_heartbeat_commands_act(tmp_path):
@@ -162,7 +162,7 @@ def test_with_the_commanders_heartbeat_commands_act(tmp_path):
         assert remote.sdo[0x1016][1].raw == (PLC << 16) | 300
         remote.sdo[0x2005].raw = 0  # de-sync on the path
         ctl.step()
-        assert ctl.tracker.state is TrackState.DESYNCING
+        assert ctl.source.tracker.state is TrackState.DESYNCING
         assert remote.sdo[0x2012].raw == 0 and not ctl.events.of_kind("plc_no_commander")
 
 
@@ -176,12 +176,12 @@ def test_nmt_pre_operational_refuses_motion_writes(tmp_path):
         _steps(ctl, 30)  # the controller's heartbeat says PRE-OPERATIONAL now
         assert [d for _, c, d in sim.recorder.frames[n0:] if c == 0x700 + NODE] == [b"\x7f"]
         assert _abort(_write(remote, 0x2005, None, 0)) == 0x08000022
-        assert ctl.tracker.state is TrackState.SYNCED
+        assert ctl.source.tracker.state is TrackState.SYNCED
         remote.nmt.send_command(0x01)
         ctl.step()
         remote.sdo[0x2005].raw = 0
         ctl.step()
-        assert ctl.tracker.state is TrackState.DESYNCING
+        assert ctl.source.tracker.state is TrackState.DESYNCING
         kinds = [e.detail for e in ctl.events.of_kind("plc_nmt")]
         assert kinds == ["NMT OPERATIONAL -> PRE_OPERATIONAL", "NMT PRE_OPERATIONAL -> "
                          "OPERATIONAL"]
@@ -205,7 +205,7 @@ def test_command_window_after_the_sync(tmp_path):
         ctl.step()
         assert answers and answers[0][0] == 0x80
         assert struct.unpack_from("<I", answers[0], 4)[0] == 0x08000022
-        assert ctl.tracker.state is TrackState.SYNCED
+        assert ctl.source.tracker.state is TrackState.SYNCED
         assert "command window (300 us" in ctl.events.of_kind("plc_outside_window")[0].detail
         peer.shutdown()
 
@@ -227,10 +227,10 @@ def test_loss_of_the_commanders_heartbeat(tmp_path, reaction):
         assert 200e6 <= lost_after <= 300e6 + 2 * ctl.period_ns  # 300 ms after the last one
         ctl.step()
         if reaction is CommanderLoss.CONTINUE:
-            assert ctl.tracker.state is TrackState.SYNCED and ev[0].reaction.startswith(
+            assert ctl.source.tracker.state is TrackState.SYNCED and ev[0].reaction.startswith(
                 "continue")
         elif reaction is CommanderLoss.DESYNC:
-            assert ctl.tracker.state is TrackState.DESYNCING
+            assert ctl.source.tracker.state is TrackState.DESYNCING
             assert ev[0].reaction == "de-sync on the path"
         else:
             assert ctl.phase in (Phase.STOPPING, Phase.STOPPED)
@@ -363,7 +363,7 @@ def demo_cell(**plc_changes):
     with SimWorld(cfg, record=False) as sim:
         world = sim.world
         ctl = Controller(cfg, sim.transport, app)
-        node = attach_plc_node(ctl, app, plc)
+        node = attach_plc_node(ctl, plc)
         world.add(Heartbeat(world, PLC))
         net = world.add(SteppedNetwork(world))
         remote = canopen.RemoteNode(cfg.master.node_id,

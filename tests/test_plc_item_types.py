@@ -37,7 +37,7 @@ def demo_cell(heartbeat: bool = True, track_types: frozenset[int] | None = None,
     with SimWorld(cfg, record=False) as sim:
         world = sim.world
         ctl = Controller(cfg, sim.transport, app)
-        node = attach_plc_node(ctl, app, PlcConfig(commander=PLC))
+        node = attach_plc_node(ctl, PlcConfig(commander=PLC))
         hb = world.add(Heartbeat(world, PLC))
         hb.on = heartbeat
         net = world.add(SteppedNetwork(world))
@@ -71,7 +71,7 @@ def _set_types(remote, types: frozenset[int]) -> None:
 def _run(ctl, app, max_cycles: int, each=lambda: None) -> None:
     while ctl.k < max_cycles:
         ctl.step()
-        if app.done(ctl, ctl.k - 1):
+        if ctl.source_done:
             return
         each()
     raise AssertionError(f"the demo did not end within {max_cycles} cycles")
@@ -93,9 +93,11 @@ def test_tracked_types_loaded_from_the_configuration_and_written_by_the_plc():
         assert app.robot.tracked_types(app.frame) == {1, 2, 40}
         remote.sdo[0x2015][2].raw = 0  # type 40 no longer
         remote.sdo[0x2015][8].raw = 1 << 31  # type 255 tracked
+        ctl.step()  # (the source gets the new set with the next cycle's context)
         assert app.robot.tracked_types(app.frame) == {1, 2, 255}
         for s in range(1, 9):
             remote.sdo[0x2015][s].raw = 0xFFFFFFFF
+        ctl.step()
         assert app.robot.tracked_types(app.frame) is None  # all bits: every type
         assert remote.sdo[0x2015][0].raw == 8
         with pytest.raises(SdoAbortedError) as e:
@@ -108,6 +110,7 @@ def test_typed_triggers_only_tracked_items_are_picked():
     ignored, 2016h), type 2 over RPDO2 and type 2 by SDO (2014h, then 2004h): placed."""
     with demo_cell(items=1, item_types=(2,), place_dwell_s=0.02) as (ctl, app, node, remote):
         _set_types(remote, frozenset({2}))
+        ctl.step()  # (the source gets the new set with the next cycle's context)
         assert app.robot.tracked_types(app.frame) == {2}
         sent: list[int] = []
 
@@ -145,7 +148,7 @@ def test_untracking_a_waiting_type_ignores_its_items():
         done: list[int] = []
 
         def plc():
-            if not done and app.eye.detected == 2 and app.step is Step.APPROACH:
+            if not done and app.eye.detected == 2 and app.stage is Step.APPROACH:
                 done.append(ctl.k)
                 _set_types(remote, frozenset({1}))
         _run(ctl, app, 8000, plc)

@@ -18,7 +18,7 @@ from controller.canopen.apps.demo import PhotoEye, PickPlace
 
 from controller.canopen.config import load_config
 from controller.canopen.io.transport import SteppedTransport
-from controller.canopen.master.app import ConveyorFollow
+from controller.canopen.apps.follow import ConveyorFollow
 from controller.canopen.master.cycle import Controller, Phase
 from controller.canopen.config.plc import PlcConfig
 from controller.canopen.master.plc_node import attach_plc_node
@@ -60,7 +60,7 @@ class Heartbeat:
 def _plc(ctl, world, app=None):
     """The PLC node with the test PLC as its commander (heartbeat in ``world``)."""
     world.add(Heartbeat(world))
-    return attach_plc_node(ctl, app, PlcConfig(commander=PLC))
+    return attach_plc_node(ctl, PlcConfig(commander=PLC))
 
 
 def _pdo_decoder(cob_id: int = 0x180 + NODE):
@@ -119,7 +119,7 @@ def test_sdo_reads_follow_the_tracker_and_engage_command_desyncs(rig):
             imfs = client.upload_int(0x2001, 0)
             err = client.upload_uint(0x2002, 0)
             samples.append((st, imfs, err))
-            assert st == int(ctl.tracker.state)  # the SDO answer is this cycle's state
+            assert st == int(ctl.source.tracker.state)  # the SDO answer is this cycle's state
         if samples and samples[-1][0] == TrackState.SYNCED and len(samples) > ENGAGE + 30:
             break
     assert seen and seen[-1] == ctl.k - 1  # the callback that was there is still called
@@ -140,19 +140,19 @@ def test_sdo_reads_follow_the_tracker_and_engage_command_desyncs(rig):
     # the PLC disengages: 2005h = 0 -> the tracker de-syncs (stop on the path), then OFF
     client.download(0x2005, 0, b"\x00")
     ctl.step()
-    assert ctl.tracker.state is TrackState.DESYNCING
+    assert ctl.source.tracker.state is TrackState.DESYNCING
     assert client.upload_uint(0x2000, 0) == TrackState.DESYNCING
     assert client.upload_int(0x2001, 0) == -1
     for _ in range(500):
         ctl.step()
-        if ctl.tracker.state is TrackState.OFF:
+        if ctl.source.tracker.state is TrackState.OFF:
             break
     assert client.upload_uint(0x2000, 0) == TrackState.OFF
     # and engages again over RPDO1 (200h + id: 2005h engage, 2004h trigger)
     client.transport.send(0x200 + NODE, bytes([5, 0]))
     ctl.step()
-    assert ctl.tracker.state is TrackState.SYNCING
-    assert ctl.tracker.mode == 5 or plc.commands[-1][1] == 5
+    assert ctl.source.tracker.state is TrackState.SYNCING
+    assert ctl.source.tracker.mode == 5 or plc.commands[-1][1] == 5
     assert [v for _, v in plc.commands] == [0, 5]
 
 
@@ -181,7 +181,7 @@ def test_sdo_aborts(rig):
         assert e.value.code == code, e.value
     assert client.upload_uint(0x2005, 0) == 0  # refused writes are not stored
     ctl.step()
-    assert ctl.tracker.state is TrackState.OFF  # ... and did nothing
+    assert ctl.source.tracker.state is TrackState.OFF  # ... and did nothing
 
 
 def test_tpdo1_content_inhibit_and_event_timer(rig):
@@ -271,7 +271,7 @@ def test_demo_plc_trigger_and_item_count(tmp_path):
             if ctl.phase is Phase.ENABLING:
                 continue
             assert ctl.phase is Phase.RUNNING
-            if app.done(ctl, ctl.k - 1):
+            if ctl.source_done:
                 break
             if ctl.k % 25 == 0:
                 counts.append(client.upload_uint(0x2003, 0))
@@ -353,7 +353,7 @@ def _run_demo(ctl, app, max_cycles: int, each_cycle) -> None:
         ctl.step()
         if ctl.phase is Phase.ENABLING:
             continue
-        if app.done(ctl, ctl.k - 1):
+        if ctl.source_done:
             break
         each_cycle()
 
@@ -400,7 +400,7 @@ def test_demo_plc_disengage_misses_the_item(tmp_path):
         sent = []
 
         def disengage_while_following():
-            if not sent and app.step is Step.FOLLOW:
+            if not sent and app.stage is Step.FOLLOW:
                 sent.append(ctl.k)
                 client.download(0x2005, 0, b"\x00")
         _run_demo(ctl, app, 6000, disengage_while_following)

@@ -13,7 +13,7 @@ import can
 import pytest
 from controller.canopen.apps import record as rr
 
-from controller.canopen.master.app import ConveyorFollow
+from controller.canopen.apps.follow import ConveyorFollow
 from controller.canopen.master.cycle import Controller
 from controller.canopen.slave.world import SimWorld
 from controller.canopen.testing import bus_yml, load

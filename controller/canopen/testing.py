@@ -13,7 +13,8 @@ from pathlib import Path
 
 from ..resources import data_path
 from .config import ControllerConfig, load_config
-from .master.app import Application
+from .apps.follow import ConveyorFollow
+from .master.source import SetpointSource
 from .master.cycle import Controller
 from .slave.world import SimWorld
 
@@ -124,11 +125,14 @@ def bus_yml(directory: Path, axes: Iterable[str] = ("x", "y"), text: str | None 
     return p
 
 
-def stepped(cfg: ControllerConfig, app: Application | None = None,
+def stepped(cfg: ControllerConfig, source: SetpointSource | None = None,
             present: Iterable[str] | None = None, record: bool = False,
             **kw) -> tuple[SimWorld, Controller]:
+    """A simulated bus of ``cfg`` and a controller on it with ``source`` (default: a
+    :class:`ConveyorFollow` that never engages)."""
     world = SimWorld(cfg, present=present, record=record)
-    return world, Controller(cfg, world.transport, app, **kw)
+    return world, Controller(cfg, world.transport,
+                             source if source is not None else ConveyorFollow(), **kw)
 
 
 def load(directory: Path, **kw) -> ControllerConfig:

@@ -127,7 +127,7 @@ def main(argv: list[str] | None = None, prog: str = "cantrack demo") -> int:
         telemetry.append(tel)
         app.on_item = tel.item
         try:
-            plc = attach_plc_node(ctl, app, cfg.plc) if args.plc_node else None
+            plc = attach_plc_node(ctl, cfg.plc) if args.plc_node else None
             if plc is not None:
                 app.trigger_overflow = plc.config.trigger_overflow
             ctl.boot()

@@ -18,7 +18,7 @@ import argparse
 from ..canopen.apps.record import compare, drive_setpoints, encoder_stream, read_frames, replay
 from ..canopen.apps.report import write_telemetry
 from ..canopen.config import load_config
-from ..canopen.master.app import ConveyorFollow
+from ..canopen.apps.follow import ConveyorFollow
 from ..errors import ConfigError
 from ..tracking import Mode
 

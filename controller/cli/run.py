@@ -45,7 +45,7 @@ from ..canopen.io import canbus
 from ..canopen.io.files import write_json_atomic
 from ..canopen.io.rotating import add_arguments as add_rotation_arguments
 from ..canopen.io.transport import RealtimeTransport
-from ..canopen.master.app import ConveyorFollow
+from ..canopen.apps.follow import ConveyorFollow
 from ..canopen.master.cycle import Controller
 from ..canopen.master.plc_node import attach_plc_node, plc_summary
 from ..errors import ConfigError
@@ -317,7 +317,7 @@ def main(argv: list[str] | None = None, prog: str = "cantrack run") -> int:
     wall0 = time.perf_counter()
     ctl = Controller(cfg, transport, app, on_cycle=on_cycle, keep_trace=False,
                      enforce_bus_load=False)  # (checked above, at the bus's bitrate)
-    plc = attach_plc_node(ctl, app, cfg.plc) if (args.plc_node or cfg.plc is not None) \
+    plc = attach_plc_node(ctl, cfg.plc) if (args.plc_node or cfg.plc is not None) \
         else None
     if plc is not None:
         print(plc_summary(plc), file=sys.stderr)

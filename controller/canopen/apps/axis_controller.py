@@ -1,6 +1,8 @@
-"""The cycle with axis jobs instead of the tracker: :class:`MotionController` runs
+"""Axis jobs as a setpoint source: :class:`JobSequence` runs
 :mod:`~controller.canopen.apps.axis_jobs` one after the other in one session (one boot, one
-enable); :func:`run_jobs` drives it until they are done, a job fails or the time is up."""
+enable) as a pure :class:`~controller.canopen.master.source.SetpointSource`;
+:class:`MotionController` is the cycle with such a sequence, :func:`run_jobs` drives it until
+the jobs are done, a job fails or the time is up."""
 
 from __future__ import annotations
 
@@ -9,69 +11,49 @@ from collections.abc import Callable, Sequence
 from typing import Any
 
 from ...errors import CanError
-from ...tracking import Mode
-from ..master.app import NO_STATUS, AppStatus
-from ..master.axisio import AxisIO, DriveInput
+from ..master.axisio import AxisIO
 from ..master.cycle import Controller, CycleRecord, Phase
-from ..protocol import cia402
-from .axis_jobs import (
-    Job,
-    MotionError,
-    MotionReport,
+from ..master.source import (
+    NO_STATUS,
+    AxisSetpoints,
+    CycleContext,
+    DriveCommand,
+    SourceOutput,
+    SourceStart,
+    SourceStatus,
+    Transfers,
 )
+from .axis_jobs import AxisSlot, Job, MotionError, MotionReport
 
 
-class _JobApp:
-    """The Application the cycle sees: ends the run when the jobs are done."""
+class JobSequence:
+    """The axis jobs of one session, one after the other; the axes without a running job hold
+    where they were enabled (or where their last job ended).  A failed job ends the session.
 
-    def __init__(self) -> None:
-        self.ctl: MotionController | None = None
+    Each cycle: this cycle's drive views into the axes' slots; the next job started when the
+    last is done (with the axis' hold as its start); the running job's (command, target)
+    for its axis, the hold for the others, as :class:`AxisSetpoints` [mm | deg]; the job's
+    quick stop (a limit) and its SDO program for before the next cycle as requests."""
 
-    def start(self, ctl: Controller, cycle: int) -> None:
-        pass
-
-    def update(self, ctl, cycle, belt):  # not called: MotionController._run_step
-        raise AssertionError
-
-    def master_lost(self, ctl: Controller, cycle: int) -> None:
-        pass
-
-    def done(self, ctl: Controller, cycle: int) -> bool:
-        return ctl.all_done
-
-    def status(self) -> AppStatus:
-        return NO_STATUS
-
-    def engage(self, ctl: Controller, mode: Mode) -> bool:
-        return True  # (the jobs, not the tracker, move the axes: a PLC command is ignored)
-
-    def trigger(self, t_ns: int, item_type: int = 0) -> bool:
-        return False
-
-    def track_types(self, types: frozenset[int] | None) -> bool:
-        return False
-
-
-class MotionController(Controller):
-    """The cycle with :class:`Job` s instead of the tracker, run one after the other in one
-    session (one boot, one enable); the axes without a running job hold.  A failed job
-    ends the session."""
-
-    def __init__(self, cfg, transport, jobs: Job | Sequence[Job], **kw: Any) -> None:
-        super().__init__(cfg, transport, _JobApp(), **kw)
-        self.jobs = [jobs] if isinstance(jobs, Job) else list(jobs)
-        if not self.jobs:
+    def __init__(self, jobs: Sequence[Job], slots: Sequence[AxisSlot],
+                 names: Sequence[str]) -> None:
+        """``slots``/``names``: every axis of ``.tracking.axes``, in order."""
+        if not jobs:
             raise MotionError("no motion job")
+        self.jobs = list(jobs)
+        self.slots = list(slots)
         self.index = 0
         #: (result, message) once a controlled stop was requested (:meth:`request_stop`)
         self.stop_reason: tuple[str, str] | None = None
-        self.ios: list[AxisIO] = []
+        by_name = dict(zip(names, self.slots))
+        #: each job's axis
+        self.job_slots: list[AxisSlot] = []
         for job in self.jobs:
-            io = next((a for a in self.axes if a.axis == job.ax.name), None)
-            if io is None:
+            slot = by_name.get(job.ax.name)
+            if slot is None:
                 raise MotionError(f"no axis {job.ax.name!r}")
-            self.ios.append(io)
-            job.attach(self, io)
+            job.bind(slot)
+            self.job_slots.append(slot)
 
     @property
     def job(self) -> Job:
@@ -79,15 +61,16 @@ class MotionController(Controller):
         return self.jobs[self.index]
 
     @property
-    def io(self) -> AxisIO:
-        return self.ios[self.index]
+    def slot(self) -> AxisSlot:
+        """The axis of the running job."""
+        return self.job_slots[self.index]
 
     @property
     def all_done(self) -> bool:
         job = self.job
         return job.done and (not job.report.ok or self.index == len(self.jobs) - 1)
 
-    def request_stop(self, result: str, message: str) -> int:
+    def request_stop(self, k: int, result: str, message: str, period_s: float) -> int:
         """Stop in a controlled way (no quick stop): the running job stops jerk-limited and
         ends with ``result``/``message`` when the axis is at rest; no further job starts.
         Returns the number of cycles after which to give up waiting for that."""
@@ -95,55 +78,116 @@ class MotionController(Controller):
             self.stop_reason = (result, message)
         job = self.job
         if job.done or not job.started:
-            return 2  # the next cycle ends it (see _run_step)
-        return math.ceil(job.request_stop(self, result, message) / self.cfg.period_s) + 1
+            return 2  # the next cycle ends it (see step)
+        return math.ceil(job.request_stop(k, result, message) / period_s) + 1
 
-    def fail_job(self, k: int, message: str, result: str = "ERROR_LIMIT") -> None:
-        t_s = (self.clock.now_ns() - self.t0) * 1e-9
-        self.quick_stop(k, t_s, self.io.label, "limit", message)
-        self.job.finish(self, k, False, result, message)
+    def hold_last_target(self) -> None:
+        """The running job's axis holds the last target sent from now on (time is up)."""
+        slot = self.slot
+        slot.hold = slot.target
 
-    def _supervise(self, k: int, t_s: float) -> None:
-        io = self.io
-        raw = io.input
-        masked = self.job.masks_bit13() and raw is not None
-        if masked:
-            io.input = DriveInput(raw.statusword & ~cia402.SW_FOLLOWING_ERROR, raw.actual,
-                                  raw.t_ns, raw.cycle)
-        try:
-            super()._supervise(k, t_s)
-        finally:
-            if masked:
-                io.input = raw
+    # -- the source --------------------------------------------------------------------------
+    def start(self, start: SourceStart) -> SourceStatus:
+        for slot, j, d in zip(self.slots, start.joints, start.drives):
+            slot.hold = slot.target = slot.scale.to_counts(j)
+            slot.see(d)
+        return NO_STATUS
 
-    def _run_step(self, k: int, t_s: float, est) -> tuple[float, ...]:
+    def step(self, ctx: CycleContext) -> SourceOutput:
+        k = ctx.cycle
+        for slot, d in zip(self.slots, ctx.drives):
+            slot.see(d)
         if self.job.done and not self.all_done:
             self.index += 1
-        job = self.job
+        job, jslot = self.job, self.slot
         if not job.started and self.stop_reason is not None and not job.done:
             # stopped (time is up) before this job could start: it does not run
-            job._k0 = k
-            job.report.start_mm = self.io.scale.from_counts(self.io.hold)
-            job.finish(self, k, False, self.stop_reason[0],
-                       f"{self.stop_reason[1]}: not started")
+            job.not_started(k, jslot.scale.from_counts(jslot.hold), *self.stop_reason)
         elif not job.started:
-            job.start(self, k, self.io.scale.from_counts(self.io.hold))
-        out = []
-        for a in self.axes:
-            if a is self.io and not job.done:
-                cw, target = job.cycle(self, k)
-                inp = a.input
+            job.start(k, jslot.scale.from_counts(jslot.hold))
+        positions: list[float] = []
+        commands: list[DriveCommand] = []
+        stop = None
+        for slot in self.slots:
+            if slot is jslot and not job.done:
+                cmd, target = job.cycle(k)
+                inp = slot.reading
                 job.report.targets.append(target)
                 job.report.actuals.append(inp.actual if inp is not None else 0)
                 if job.done:
-                    a.hold = target
+                    slot.hold = target
+                stop = job.take_stop()
             else:
-                cw, target = cia402.CW_ENABLE, a.hold
-            if self.phase is Phase.STOPPING:
-                cw = cia402.CW_QUICK_STOP_CMD
-            a.send(cw, target)
-            out.append(a.scale.from_counts(target))
-        return tuple(out)
+                # (the axes after one that asked for the quick stop get it in this cycle
+                # already; the cycle sends it to every drive from the next one on)
+                cmd = DriveCommand.QUICK_STOP if stop is not None else DriveCommand.ENABLE
+                target = slot.hold
+            slot.target = target
+            positions.append(slot.scale.from_counts(target))
+            commands.append(cmd)
+        return SourceOutput(AxisSetpoints(tuple(positions), tuple(commands)), NO_STATUS,
+                            stop=stop, done=self.all_done, transfers=self._between(k + 1))
+
+    def _between(self, k: int) -> Transfers:
+        """The running job's SDO program before cycle ``k`` (decided when it runs)."""
+        job = self.job
+        if job.started and not job.done:
+            yield from job.between(k)
+
+
+class MotionController(Controller):
+    """The cycle with a :class:`JobSequence` of ``jobs`` as its setpoint source (one boot, one
+    enable for all of them)."""
+
+    def __init__(self, cfg, transport, jobs: Job | Sequence[Job], **kw: Any) -> None:
+        jobs = [jobs] if isinstance(jobs, Job) else list(jobs)
+        if not jobs:
+            raise MotionError("no motion job")
+        tc = cfg.tracking
+        slots = [AxisSlot(i, cfg.label(a.node), a.scale) for i, a in enumerate(tc.axes)]
+        self.sequence = JobSequence(jobs, slots, [a.name for a in tc.axes])
+        super().__init__(cfg, transport, self.sequence, **kw)
+        self.ios: list[AxisIO] = []
+        for job, slot in zip(jobs, self.sequence.job_slots):
+            io = self.axes[slot.index]
+            if job.needs_inputs and not io.inputs_mapped:
+                raise MotionError(
+                    f"axis {job.ax.name}: {job.kind} needs 60FDh (digital inputs) of "
+                    f"'{io.node}' mapped in an enabled TPDO with transmission 1")
+            self.ios.append(io)
+        for slot, io in zip(slots, self.axes):
+            slot.inputs_mapped, slot.probe_mapped = io.inputs_mapped, io.probe_mapped
+
+    @property
+    def jobs(self) -> list[Job]:
+        return self.sequence.jobs
+
+    @property
+    def index(self) -> int:
+        """The running job's (or the last one's) index in :attr:`jobs`."""
+        return self.sequence.index
+
+    @property
+    def stop_reason(self) -> tuple[str, str] | None:
+        return self.sequence.stop_reason
+
+    @property
+    def job(self) -> Job:
+        """The job running (or the last one)."""
+        return self.sequence.job
+
+    @property
+    def io(self) -> AxisIO:
+        """The drive I/O of the running job's axis."""
+        return self.ios[self.sequence.index]
+
+    @property
+    def all_done(self) -> bool:
+        return self.sequence.all_done
+
+    def request_stop(self, result: str, message: str) -> int:
+        """:meth:`JobSequence.request_stop` now (in cycle ``k``)."""
+        return self.sequence.request_stop(self.k, result, message, self.cfg.period_s)
 
 
 # -- running ---------------------------------------------------------------------------------
@@ -169,16 +213,13 @@ def run_jobs(ctl: MotionController, max_time_s: float = 600.0,
                 stopping = True
                 deadline = ctl.k + ctl.request_stop("ERROR_TIMEOUT", timeout)
             if ctl.k >= deadline and ctl.phase is not Phase.STOPPING:
-                io = ctl.io
                 if not ctl.job.done and ctl.job.started:
-                    io.hold = io.target  # hold the last setpoint sent, not an older one
-                ctl.job.finish(ctl, ctl.k - 1, False, "ERROR_TIMEOUT",
+                    ctl.sequence.hold_last_target()  # not an older setpoint
+                ctl.job.finish(ctl.k - 1, False, "ERROR_TIMEOUT",
                                timeout + (" and not at rest after the stop" if stopping
                                           else ""))
                 break
-            if ctl.phase is Phase.RUNNING and ctl.job.started and not ctl.job.done:
-                ctl.job.between(ctl)
-            ctl.step()
+            ctl.step()  # (first the SDO transfers the running job asked for)
             if ctl.phase is Phase.RUNNING and ctl.all_done:
                 break
             if ctl.phase is Phase.STOPPED:  # (a stop ends confirmed or unconfirmed)
@@ -191,13 +232,13 @@ def run_jobs(ctl: MotionController, max_time_s: float = 600.0,
         elif ctl.phase is Phase.ENABLING:
             ctl.disable()  # time up while enabling: leave no drive enabled
     except CanError as exc:
-        ctl.job.finish(ctl, ctl.k, False, "ERROR", str(exc))
+        ctl.job.finish(ctl.k, False, "ERROR", str(exc))
     job = ctl.job
     reasons = "; ".join(f"{e.source}: {e.detail}" for e in ctl.events if e.reaction)
     if ctl.failure is not None and not job.done:
-        job.finish(ctl, ctl.k, False, "ERROR", str(ctl.failure))
+        job.finish(ctl.k, False, "ERROR", str(ctl.failure))
     if not job.done:
-        job.finish(ctl, ctl.k, False, "ERROR", reasons or "stopped")
+        job.finish(ctl.k, False, "ERROR", reasons or "stopped")
     elif not job.report.ok and not job.report.message:
         job.report.message = reasons
     reports = []

@@ -6,8 +6,20 @@ enable in CSP, supervision), but while RUNNING the setpoint of one axis comes fr
 were enabled.  Units: mm (deg for c), s; counts only at the drive boundary
 (:class:`~controller.kinematics.AxisScale`, machine coordinates).
 
-Jobs (one axis each; :class:`MotionController` runs a list of them one after the other in
-one session -- one boot, one enable -- and :func:`home` homes several axes that way):
+The jobs are pure: they see their drive through its :class:`AxisSlot` (filled from the
+cycle's :class:`~controller.canopen.master.source.CycleContext`: statusword, 6064h, 60FDh,
+touch probe 1), return a :class:`~controller.canopen.master.source.DriveCommand` and a
+target each cycle, ask for the quick stop as a value (:meth:`Job.fail`), and do their SDO
+transfers as a program (:meth:`Job.between`: a generator of
+:class:`~controller.canopen.master.source.SdoDownload` /
+:class:`~controller.canopen.master.source.SdoUpload` that the cycle runs before the next
+SYNC; a 6060h write tells the cycle the drive's mode: in homing mode statusword bit 13 is
+"homing error", not a following error).
+
+Jobs (one axis each; :class:`~controller.canopen.apps.axis_controller.JobSequence`, the
+setpoint source of :class:`~controller.canopen.apps.axis_controller.MotionController`, runs
+a list of them one after the other in one session -- one boot, one enable -- and
+:func:`home` homes several axes that way):
 
 * :class:`MoveJob` -- :class:`~controller.motion.PointToPoint` (Sled_Y) to a target in
   machine coordinates; the target must lie within the axis' min/max; it can be re-targeted
@@ -78,9 +90,10 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from enum import StrEnum
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from ...errors import CanError
+from ...kinematics import AxisScale
 from ...kinematics.counts import axis_unit
 from ...motion import AxisConfig as MotionAxisConfig
 from ...motion import (
@@ -92,15 +105,10 @@ from ...motion import (
     PointToPoint,
 )
 from ...motion.profile import stopping_distance_mm
-from ..config.concise import effective_pdos
 from ..config.tracking import AxisConfig, AxisHomingConfig
-from ..master.axisio import AxisIO
+from ..master.events import EventKind
+from ..master.source import DriveCommand, DriveView, QuickStop, SdoDownload, SdoUpload, Transfers
 from ..protocol import cia402
-from ..protocol.pdo import PdoCodec
-from ..protocol.sdo import SdoClient
-
-if TYPE_CHECKING:
-    from .axis_controller import MotionController
 
 #: 60FDh digital input bits (CiA 402-2; bit 16 is the manufacturer-specific slow-down input)
 DI_NEG_LIMIT = 1 << 0
@@ -233,9 +241,59 @@ def _motion_axis_config(ax: AxisConfig, period_s: float) -> MotionAxisConfig:
                             m.brake_engage_s, m.stop_time_s)
 
 
+@dataclass(frozen=True, slots=True)
+class Reading:
+    """The drive's last TPDO: 6041h statusword and 6064h position actual [counts]."""
+
+    statusword: int
+    actual: int
+
+
+@dataclass
+class AxisSlot:
+    """One axis as the job sequence keeps it: where it holds and the last target sent
+    [counts], what its drive's TPDOs said this cycle (``reading``: None before the first;
+    ``di`` 60FDh, 0 when not mapped; ``probe`` (60B9h, 60BAh)), and what the drive maps
+    (60FDh in a TPDO of transmission 1; 60B9h and 60BAh in one TPDO)."""
+
+    index: int  #: in ``.tracking.axes``
+    label: str  #: the drive's, for events
+    scale: AxisScale
+    inputs_mapped: bool = False
+    probe_mapped: bool = False
+    hold: int = 0
+    target: int = 0
+    reading: Reading | None = None
+    di: int = 0
+    probe: tuple[int, int] | None = None
+
+    def see(self, d: DriveView) -> None:
+        """This cycle's view of the drive (positions back to counts: exact, they came from
+        counts)."""
+        if d.actual is not None:
+            self.reading = Reading(d.statusword, self.scale.to_counts(d.actual))
+        self.di = d.inputs if d.inputs is not None else 0
+        self.probe = d.probe
+
+
+def _value(v: int | None) -> int:
+    """The value an :class:`SdoUpload` brought back (the cycle always sends one)."""
+    if v is None:
+        raise MotionError("an SDO upload without a value")
+    return v
+
+
+def _no_transfers() -> Transfers:
+    return
+    yield  # (a generator without transfers)
+
+
 class Job:
-    """One axis' motion; ``cycle()`` is called once per RUNNING cycle and returns
-    (controlword, target counts) for the axis' RPDO."""
+    """One axis' motion, a pure part of the job sequence's setpoint source
+    (:class:`~controller.canopen.apps.axis_controller.JobSequence`): ``cycle()`` is called
+    once per RUNNING cycle and returns (:class:`DriveCommand`, target counts) for the axis'
+    RPDO; ``between()`` is the SDO program to run before the next cycle (it yields
+    :class:`SdoDownload`/:class:`SdoUpload` values, the cycle does the transfers)."""
 
     kind = "?"
 
@@ -244,67 +302,81 @@ class Job:
         self.period_s = period_s
         self.report = MotionReport(self.kind, ax.name)
         self.done = False
-        self.io: AxisIO | None = None
+        self.slot: AxisSlot | None = None
         self.started = False
         self._k0 = 0
+        self._stop: QuickStop | None = None
 
-    # -- hooks ------------------------------------------------------------------------------
     #: GotoY needs 60FDh; moves and jogs use it (limit switches) when it is mapped
     needs_inputs = False
 
-    def attach(self, ctl: MotionController, io: AxisIO) -> None:
-        self.io = io
-        self.di = 0
-        self.di_mapped = False
-        cfg = ctl.cfg
-        tp = effective_pdos(cfg)[io.node].find("tpdo", [(0x60FD, 0)])
-        if tp is None or tp.transmission != 1:
-            if self.needs_inputs:
-                raise MotionError(
-                    f"axis {self.ax.name}: {self.kind} needs 60FDh (digital inputs) of "
-                    f"'{io.node}' mapped in an enabled TPDO with transmission 1")
-            return
-        self.di_mapped = True
-        self._codec = PdoCodec(tp, cfg.ods[io.node])
-        self._di_pos = self._codec.position(0x60FD)
-        ctl.transport.subscribe(tp.cob_id, self._on_di)
+    def bind(self, slot: AxisSlot) -> None:
+        """The axis the job moves (the sequence's slot of it)."""
+        self.slot = slot
 
-    def _on_di(self, can_id: int, data: bytes, t_ns: int) -> None:
-        self.di = int(self._codec.unpack(data)[self._di_pos])
+    @property
+    def di(self) -> int:
+        """60FDh of this cycle (0 when not mapped)."""
+        return self.slot.di if self.slot is not None else 0
 
-    def start(self, ctl: MotionController, k: int, actual_mm: float) -> None:
+    def _slot(self) -> AxisSlot:
+        if self.slot is None:
+            raise MotionError(f"axis {self.ax.name}: the {self.kind} job is not bound to an "
+                              "axis (JobSequence binds it)")
+        return self.slot
+
+    def _input(self) -> Reading | None:
+        """The drive's last TPDO (None before the first)."""
+        return self._slot().reading
+
+    def start(self, k: int, actual_mm: float) -> None:
         self.started = True
         self._k0 = k
         self.report.start_mm = actual_mm
 
-    def between(self, ctl: MotionController) -> None:
-        """Called between two cycles (SDO transfers go here)."""
+    def not_started(self, k: int, start_mm: float, result: str, message: str) -> None:
+        """The session is stopping before the job could start (cycle ``k``): it ends without
+        running."""
+        self._k0 = k
+        self.report.start_mm = start_mm
+        self.finish(k, False, result, f"{message}: not started")
 
-    def cycle(self, ctl: MotionController, k: int) -> tuple[int, int]:
+    def between(self, k: int) -> Transfers:
+        """The SDO transfers before cycle ``k`` (a generator, run lazily by the cycle; none
+        here)."""
+        return _no_transfers()
+
+    def cycle(self, k: int) -> tuple[DriveCommand, int]:
         raise NotImplementedError
 
-    def masks_bit13(self) -> bool:
-        """True while the drive is in homing mode (bit 13 is then 'homing error')."""
-        return False
-
-    def request_stop(self, ctl: MotionController, result: str, message: str) -> float:
+    def request_stop(self, k: int, result: str, message: str) -> float:
         """Stop the running job in a controlled way (e.g. ``--max-time`` is up): the job
         then ends by itself with ``result``/``message`` once the axis is at rest.  Returns
         an upper bound [s] of the time that takes (0: the job has been finished here)."""
-        self.finish(ctl, ctl.k, False, result, message)
+        self.finish(k, False, result, message)
         return 0.0
 
     def progress(self) -> str:
         """Extra text for the progress line (the final target, the jog speed ...)."""
         return ""
 
+    def take_stop(self) -> QuickStop | None:
+        """The quick stop of all drives this cycle's :meth:`cycle` asked for (once)."""
+        stop, self._stop = self._stop, None
+        return stop
+
     # -- helpers ----------------------------------------------------------------------------
     def state(self, name: str) -> None:
         if not self.report.states or self.report.states[-1] != name:
             self.report.states.append(name)
 
-    def finish(self, ctl: MotionController, k: int, ok: bool, result: str,
-               message: str = "") -> None:
+    def fail(self, k: int, message: str, result: str = "ERROR_LIMIT") -> None:
+        """A limit: the quick stop of all drives (asked of the cycle), the job fails."""
+        label = self.slot.label if self.slot is not None else self.ax.name
+        self._stop = QuickStop(label, EventKind.LIMIT, message)
+        self.finish(k, False, result, message)
+
+    def finish(self, k: int, ok: bool, result: str, message: str = "") -> None:
         if self.done:
             return
         self.done = True
@@ -325,16 +397,16 @@ class _SetpointJob(Job):
         #: (result, message) of a stop requested from outside (:meth:`request_stop`)
         self._abort: tuple[str, str] | None = None
 
-    def output(self, ctl: MotionController, k: int):
+    def output(self, k: int):
         raise NotImplementedError
 
-    def cycle(self, ctl: MotionController, k: int) -> tuple[int, int]:
-        out = self.output(ctl, k)
+    def cycle(self, k: int) -> tuple[DriveCommand, int]:
+        out = self.output(k)
         self.state(out.state.name)
         self.setpoint_mm = out.position_mm
         self.report.setpoint_mm = out.position_mm
         sc = self.ax.scale
-        inp = self.io.input
+        inp = self._input()
         if self.checks_limits and self.di & (DI_NEG_LIMIT | DI_POS_LIMIT):
             # moving into an active limit switch (60FDh bit 0 / 1): abort.  The drive has
             # stopped itself at the switch (it refuses to move into it): the setpoint stream
@@ -344,16 +416,16 @@ class _SetpointJob(Job):
                 ("positive", 1) if self.di & DI_POS_LIMIT and v > 0 else None
             if which is not None:
                 self.report.inputs.append(self.di)
-                actual = inp.actual if inp is not None else self.io.target
+                actual = inp.actual if inp is not None else self._slot().target
                 self.report.setpoint_mm = sc.from_counts(actual)
-                ctl.fail_job(k, f"{which[0]} limit switch (60FDh bit {which[1]}) active at "
+                self.fail(k, f"{which[0]} limit switch (60FDh bit {which[1]}) active at "
                                 f"{sc.from_counts(actual):.4f} while moving",
                              result="ERROR_LIMIT_SWITCH")
-                return cia402.CW_QUICK_STOP_CMD, actual
+                return DriveCommand.QUICK_STOP, actual
         if self.checks_limits and not sc.min <= out.position_mm <= sc.max:
-            self.report.setpoint_mm = sc.from_counts(self.io.target)  # the last one sent
-            ctl.fail_job(k, f"setpoint {out.position_mm:.4f} outside [{sc.min:g}, {sc.max:g}]")
-            return cia402.CW_QUICK_STOP_CMD, self.io.target
+            self.report.setpoint_mm = sc.from_counts(self._slot().target)  # the last one sent
+            self.fail(k, f"setpoint {out.position_mm:.4f} outside [{sc.min:g}, {sc.max:g}]")
+            return DriveCommand.QUICK_STOP, self._slot().target
         if out.result < 0 and self._error is None:
             self._error = out  # the motion object stops (ABORT, brake): follow it to rest
         target = sc.to_counts(out.position_mm)
@@ -362,7 +434,7 @@ class _SetpointJob(Job):
             if self._abort is not None:
                 unit = self.ax.scale.unit
                 result, message = self._abort
-                self.finish(ctl, k, False, result,
+                self.finish(k, False, result,
                             f"{message}: stopped (jerk-limited) at {out.position_mm:.4f} {unit}")
             else:
                 if first.result is MotionResult.ERROR_LIMIT_SWITCH and inp is not None:
@@ -370,14 +442,14 @@ class _SetpointJob(Job):
                     # on: hold where the drive stands (no jump on the next enable)
                     target = inp.actual
                     self.report.setpoint_mm = sc.from_counts(target)
-                self.finish(ctl, k, first.result is MotionResult.FINISHED,
+                self.finish(k, first.result is MotionResult.FINISHED,
                             first.result.name, first.message)
             self.ended(out)
-        return cia402.CW_ENABLE, target
+        return DriveCommand.ENABLE, target
 
-    def request_stop(self, ctl: MotionController, result: str, message: str) -> float:
+    def request_stop(self, k: int, result: str, message: str) -> float:
         if self.obj is None:
-            return super().request_stop(ctl, result, message)
+            return super().request_stop(k, result, message)
         if self._abort is None and self._error is None:
             self._abort = (result, message)
             self.obj.stop()  # jerk-limited stop from the present (p, v, a), then the brake
@@ -410,8 +482,8 @@ class MoveJob(_SetpointJob):
             raise MotionError(f"axis {self.ax.name}: target {target_mm} outside the axis "
                               f"limits [{sc.min:g}, {sc.max:g}]")
 
-    def start(self, ctl: MotionController, k: int, actual_mm: float) -> None:
-        super().start(ctl, k, actual_mm)
+    def start(self, k: int, actual_mm: float) -> None:
+        super().start(k, actual_mm)
         self.obj = PointToPoint(_motion_axis_config(self.ax, self.period_s), actual_mm)
         self.obj.set_target(self.target_mm)
 
@@ -424,7 +496,7 @@ class MoveJob(_SetpointJob):
         if self.obj is not None:
             self.obj.set_target(self.target_mm)
 
-    def output(self, ctl: MotionController, k: int):
+    def output(self, k: int):
         return self.obj.update()
 
     def progress(self) -> str:
@@ -448,12 +520,12 @@ class JogJob(_SetpointJob):
         self.obj: Jog | None = None
         self.soft_limit = False
 
-    def start(self, ctl: MotionController, k: int, actual_mm: float) -> None:
-        super().start(ctl, k, actual_mm)
+    def start(self, k: int, actual_mm: float) -> None:
+        super().start(k, actual_mm)
         self.obj = Jog(_motion_axis_config(self.ax, self.period_s), actual_mm)
         self.obj.set_velocity(self.speed)
 
-    def output(self, ctl: MotionController, k: int):
+    def output(self, k: int):
         jog = self.obj
         if k - self._k0 == self.n_run and jog.velocity_command_mm_s != 0.0:
             jog.stop()
@@ -498,9 +570,6 @@ class GotoYJob(_SetpointJob):
         #: arm (touch probe, holding) | gotoy | settle | setup | low | run | back | csp
         self.phase = "arm" if self.touch_probe else "gotoy"
         self._probe_read = False
-        #: (60B9h, 60BAh) from a TPDO that maps both (None: not mapped, or nothing yet)
-        self._probe_pdo: tuple[int, int] | None = None
-        self._probe_pdo_mapped = False
         self._probe_waits = 0
 
     needs_inputs = True
@@ -509,32 +578,18 @@ class GotoYJob(_SetpointJob):
     #: SDO read (the TPDO is sent at the edge, before the SYNC TPDO with 60FDh bit 2)
     PROBE_PDO_WAIT_CYCLES = 5
 
-    def _attach_probe_pdo(self, ctl: MotionController, io: AxisIO) -> None:
-        """Subscribe to the TPDO that maps 60B9h and 60BAh, if the drive has one."""
-        tp = effective_pdos(ctl.cfg)[io.node].find("tpdo", [(0x60B9, 0), (0x60BA, 0)])
-        if tp is None:
-            return  # read by SDO once the sensor is seen
-        codec = PdoCodec(tp, ctl.cfg.ods[io.node])
-        pos = (codec.position(0x60B9), codec.position(0x60BA))
-        self._probe_pdo_mapped = True
-
-        def on_probe(can_id: int, data: bytes, t_ns: int) -> None:
-            values = codec.unpack(data)
-            self._probe_pdo = (int(values[pos[0]]), int(values[pos[1]]))
-        ctl.transport.subscribe(tp.cob_id, on_probe)
-
     #: 60B8h: probe 1 enabled (bit 0), first event (bit 1 = 0), trigger = the probe-1
     #: input (bits 2-3 = 00), latch on the positive edge (bit 4)
     PROBE_FUNCTION = 0x0011
     PROBE_ENABLED = 0x0001  #: 60B9h bit 0: probe 1 enabled
     PROBE_STORED = 0x0002  #: 60B9h bit 1: positive-edge value stored in 60BAh
 
-    def start(self, ctl: MotionController, k: int, actual_mm: float) -> None:
-        super().start(ctl, k, actual_mm)
+    def start(self, k: int, actual_mm: float) -> None:
+        super().start(k, actual_mm)
         self.obj = GotoY(self.config, actual_mm)
         self.obj.start()
 
-    def output(self, ctl: MotionController, k: int):
+    def output(self, k: int):
         di = self.di
         self.report.inputs.append(di)
         return self.obj.update(bool(di & DI_SLOW_DOWN), bool(di & DI_HOME),
@@ -550,37 +605,42 @@ class GotoYJob(_SetpointJob):
             r.latch_source = "touch probe" if r.probe_latched_mm is not None else "sensor"
 
     # -- touch probe 1 (homing.touch_probe) ---------------------------------------------------
-    def _arm_probe(self) -> None:
-        """60B8h = 0 (disarm, clears 60B9h), then the function: a fresh single shot."""
-        sdo = self.sdo
-        sdo.download(0x60B8, 0, (0).to_bytes(2, "little"))
-        sdo.download(0x60B8, 0, self.PROBE_FUNCTION.to_bytes(2, "little"))
-        status = sdo.upload_uint(0x60B9, 0)
+    def _arm_probe(self) -> Transfers:
+        """60B8h = 0 (disarm, clears 60B9h), then the function: a fresh single shot (the
+        cycle then forgets what the probe's TPDO said before this arming)."""
+        i = self._slot().index
+        yield SdoDownload(i, 0x60B8, 0, (0).to_bytes(2, "little"))
+        yield SdoDownload(i, 0x60B8, 0, self.PROBE_FUNCTION.to_bytes(2, "little"))
+        status = _value((yield SdoUpload(i, 0x60B9, 0)))
         if not status & self.PROBE_ENABLED or status & self.PROBE_STORED:
             raise MotionError(
                 f"axis {self.ax.name}: touch probe 1 not armed: 60B9h = {status:04X}h after "
                 f"60B8h = {self.PROBE_FUNCTION:04X}h (bit 0 'enabled' expected, bit 1 "
                 f"'stored' clear)")
-        self._probe_pdo = None  # only what the probe's TPDO says after this arming counts
 
-    def _read_probe(self, ctl: MotionController) -> None:
+    def _read_probe(self) -> Transfers:
         """Home has been seen (DOGE): the drive's latch replaces the sensor's."""
         self._probe_read = True
         obj, r, sc = self.obj, self.report, self.ax.scale
+        assert obj is not None and obj.sensor_latched_mm is not None  # (GotoY has latched)
+        sensor_mm = obj.sensor_latched_mm
         unit = self.ax.scale.unit
-        pdo = self._probe_pdo
+        slot = self._slot()
+        pdo = slot.probe
+        counts: int | None
         if pdo is not None and pdo[0] & self.PROBE_STORED:
             # the probe's TPDO (60B9h, 60BAh) came with the edge: no SDO during the motion
             status, counts = pdo
             r.probe_source = "TPDO"
-        elif self._probe_pdo_mapped and self._probe_waits < self.PROBE_PDO_WAIT_CYCLES:
+        elif slot.probe_mapped and self._probe_waits < self.PROBE_PDO_WAIT_CYCLES:
             self._probe_waits += 1
             self._probe_read = False  # again after the next cycle
             return
         else:
             try:
-                status = self.sdo.upload_uint(0x60B9, 0)
-                counts = self.sdo.upload_int(0x60BA, 0) if status & self.PROBE_STORED else None
+                status = _value((yield SdoUpload(slot.index, 0x60B9, 0)))
+                counts = _value((yield SdoUpload(slot.index, 0x60BA, 0, signed=True))) \
+                    if status & self.PROBE_STORED else None
             except CanError as exc:
                 self._probe_failed(f"touch probe 1 could not be read: {exc}")
                 return
@@ -589,12 +649,12 @@ class GotoYJob(_SetpointJob):
             self._probe_failed(
                 f"touch probe 1 stored no positive edge (60B9h = {status:04X}h, bit 1 clear) "
                 f"although the home sensor (60FDh bit 2) was seen at "
-                f"{obj.sensor_latched_mm:.4f} {unit}: is the home switch wired to the "
+                f"{sensor_mm:.4f} {unit}: is the home switch wired to the "
                 f"drive's touch-probe-1 input (homing.touch_probe)?")
             return
         r.probe_latched_counts = counts
         r.probe_latched_mm = sc.from_counts(counts)
-        r.latch_difference_counts = counts - sc.to_counts(obj.sensor_latched_mm)
+        r.latch_difference_counts = counts - sc.to_counts(sensor_mm)
         obj.refine_latch(r.probe_latched_mm)
 
     def _probe_failed(self, message: str) -> None:
@@ -616,110 +676,100 @@ class GotoYJob(_SetpointJob):
     _hold = 0
     _stable = 0
     _k_set = 0
-    sdo: SdoClient | None = None
+    #: why setting the drive's position failed (None: it did not)
+    _set_error: str | None = None
 
-    def attach(self, ctl: MotionController, io: AxisIO) -> None:
-        super().attach(ctl, io)
-        t = ctl.tc.timeouts
-        self.sdo = SdoClient(ctl.transport, io.node_id, io.label, t.sdo_s, t.sdo_retries)
-        if self.touch_probe:
-            self._attach_probe_pdo(ctl, io)
-
-    def finish(self, ctl: MotionController, k: int, ok: bool, result: str,
-               message: str = "") -> None:
+    def finish(self, k: int, ok: bool, result: str, message: str = "") -> None:
         if ok and self.phase == "gotoy":
             # GotoY finished: the job ends after the drive's position has been set
             self.phase = "settle"
             self._pending = (result, message)
             self._k_set = k
             return
-        super().finish(ctl, k, ok, result, message)
+        super().finish(k, ok, result, message)
 
-    def masks_bit13(self) -> bool:
-        return self.phase in ("low", "run", "back")
-
-    def request_stop(self, ctl: MotionController, result: str, message: str) -> float:
+    def request_stop(self, k: int, result: str, message: str) -> float:
         if self.phase == "arm":  # not moved yet
             self.phase = "gotoy"
             self.report.setpoint_mm = self.report.start_mm
-            self.finish(ctl, ctl.k, False, result, f"{message}: not started")
+            self.finish(k, False, result, f"{message}: not started")
             return 0.0
         if self.phase == "gotoy":
-            return super().request_stop(ctl, result, message)
+            return super().request_stop(k, result, message)
         # GotoY is done and the axis at rest: the drive's position is being set (no
         # motion); let that end (bounded by its own time-outs)
         return (self.SETTLE_CYCLES_MAX + 20) * self.period_s + self.SET_TIMEOUT_S
 
-    def _fail_set(self, ctl: MotionController, k: int, message: str) -> None:
+    def _fail_set(self, k: int, message: str) -> None:
         self.phase = "csp"
-        super().finish(ctl, k, False, "ERROR_SET_POSITION", message)
+        super().finish(k, False, "ERROR_SET_POSITION", message)
 
-    def between(self, ctl: MotionController) -> None:
+    def between(self, k: int) -> Transfers:
         if self.done:
             return
         if self.phase == "arm":
             self.phase = "gotoy"
             try:
-                self._arm_probe()
+                yield from self._arm_probe()
             except CanError as exc:  # at rest, nothing moved: the job ends here
-                self.finish(ctl, ctl.k, False, "ERROR_SENSOR", str(exc))
+                self.finish(k, False, "ERROR_SENSOR", str(exc))
             return
         if self.phase == "gotoy":
             obj = self.obj
             if (self.touch_probe and not self._probe_read and obj is not None
                     and obj.state in GotoY.REFINE_STATES and obj.latched_mm is not None
                     and self._abort is None and self._error is None):
-                self._read_probe(ctl)
+                yield from self._read_probe()
             return
         if self.phase not in ("setup", "back"):
             return
-        sdo, sc, r = self.sdo, self.ax.scale, self.report
+        i, sc, r = self._slot().index, self.ax.scale, self.report
         if self.phase == "setup":
             h = self.ax.homing or AxisHomingConfig()
-            sdo.download(0x6098, 0, self.SET_METHOD.to_bytes(1, "little", signed=True))
-            sdo.download(0x6060, 0, bytes([cia402.MODE_HM]))
+            yield SdoDownload(i, 0x6098, 0, self.SET_METHOD.to_bytes(1, "little", signed=True))
+            yield SdoDownload(i, 0x6060, 0, bytes([cia402.MODE_HM]))
             # in homing mode (not started) the drive holds: read where it stands now
-            before = sdo.upload_int(0x6064, 0)
+            before = _value((yield SdoUpload(i, 0x6064, 0, signed=True)))
             before_mm = sc.from_counts(before)
             after_mm = h.home_offset + (before_mm - r.latched_mm)
             self._expected = sc.to_counts(after_mm)
-            sdo.download(0x607C, 0, self._expected.to_bytes(4, "little", signed=True))
+            yield SdoDownload(i, 0x607C, 0, self._expected.to_bytes(4, "little", signed=True))
             r.set_before_counts, r.set_before_mm = before, before_mm
             self.phase = "low"
         else:  # back
-            actual = sdo.upload_int(0x6064, 0)
-            sdo.download(0x607A, 0, actual.to_bytes(4, "little", signed=True))
-            sdo.download(0x6060, 0, bytes([cia402.MODE_CSP]))
-            self.io.hold = actual
+            actual = _value((yield SdoUpload(i, 0x6064, 0, signed=True)))
+            yield SdoDownload(i, 0x607A, 0, actual.to_bytes(4, "little", signed=True))
+            yield SdoDownload(i, 0x6060, 0, bytes([cia402.MODE_CSP]))
+            self._slot().hold = actual
             r.set_after_counts, r.set_after_mm = actual, sc.from_counts(actual)
             self.phase = "csp"
             self.state("CSP")
 
-    def cycle(self, ctl: MotionController, k: int) -> tuple[int, int]:
+    def cycle(self, k: int) -> tuple[DriveCommand, int]:
         if self.phase == "arm":  # hold while touch probe 1 is armed (SDO, after this cycle)
             self.state("ARM_PROBE")
-            self._hold = self.io.hold
+            self._hold = self._slot().hold
             self.report.setpoint_mm = self.ax.scale.from_counts(self._hold)
-            return cia402.CW_ENABLE, self._hold
+            return DriveCommand.ENABLE, self._hold
         if self.phase == "gotoy":
-            out = super().cycle(ctl, k)
+            out = super().cycle(k)
             self._hold = out[1]
             return out
-        io = self.io
-        inp = io.input
+        io = self._slot()
+        inp = self._input()
         actual = inp.actual if inp is not None else self._hold
         if self.phase == "settle":
             self.state("SET_POSITION")
             self._stable = self._stable + 1 if actual == self._hold else 0
             if self._stable >= 2 or k - self._k_set >= self.SETTLE_CYCLES_MAX:
                 self.phase = "setup"  # the SDO transfers follow before the next cycle
-            return cia402.CW_ENABLE, self._hold
+            return DriveCommand.ENABLE, self._hold
         if self.phase == "setup":
-            return cia402.CW_ENABLE, self._hold
+            return DriveCommand.ENABLE, self._hold
         if self.phase == "low":  # one cycle with bit 4 low, then the rising edge
             self.phase = "run"
             self._k_start = k
-            return cia402.CW_ENABLE, actual
+            return DriveCommand.ENABLE, actual
         if self.phase == "run":
             sw = inp.statusword if inp is not None else 0
             if sw & SW_HOMING_ERROR:
@@ -731,37 +781,37 @@ class GotoYJob(_SetpointJob):
                 self._set_error = (f"method {self.SET_METHOD} not attained within "
                                    f"{self.SET_TIMEOUT_S:g} s (statusword {sw:04X}h)")
             else:
-                return cia402.CW_ENABLE | CW_HOMING_START, actual
+                return DriveCommand.HOMING_START, actual
             self.phase = "back"
-            return cia402.CW_ENABLE, actual
+            return DriveCommand.ENABLE, actual
         if self.phase == "back":
-            return cia402.CW_ENABLE, actual
+            return DriveCommand.ENABLE, actual
         # csp: back in CSP, holding where the drive stands (the new coordinate)
         r = self.report
         r.setpoint_mm = self.ax.scale.from_counts(io.hold)
-        err = getattr(self, "_set_error", None)
+        err = self._set_error
         tol = max(2, round(0.01 * self.ax.scale.counts_per_unit))
         if err is None and abs(r.set_after_counts - self._expected) > tol:
             err = (f"6064h reads {r.set_after_counts} counts after the set, "
                    f"{self._expected} expected (607Ch)")
         if err is not None:
-            self._fail_set(ctl, k, err)
+            self._fail_set(k, err)
         else:
             r.home_offset_mm = 0.0  # the drive's position is now the homed coordinate
-            super().finish(ctl, k, True, *self._pending)
-        return cia402.CW_ENABLE, io.hold
+            super().finish(k, True, *self._pending)
+        return DriveCommand.ENABLE, io.hold
 
 
 class NoHomingJob(Job):
     kind = "home"
 
-    def cycle(self, ctl: MotionController, k: int) -> tuple[int, int]:
+    def cycle(self, k: int) -> tuple[DriveCommand, int]:
         self.state("NONE")
         h = self.ax.homing or AxisHomingConfig(method="none")
         self.report.home_offset_mm = h.home_offset
         self.report.setpoint_mm = self.report.start_mm
-        self.finish(ctl, k, True, MotionResult.FINISHED.name, "absolute encoder: no homing")
-        return cia402.CW_ENABLE, self.io.hold if self.io.hold is not None else self.io.target
+        self.finish(k, True, MotionResult.FINISHED.name, "absolute encoder: no homing")
+        return DriveCommand.ENABLE, self._slot().hold
 
 
 class DriveHomingJob(Job):
@@ -776,69 +826,61 @@ class DriveHomingJob(Job):
         self._k_start = 0
         self._error: tuple[str, str] | None = None
         self._stop_req: tuple[str, str] | None = None
-        self.sdo: SdoClient | None = None
 
-    def attach(self, ctl: MotionController, io: AxisIO) -> None:
-        super().attach(ctl, io)
-        t = ctl.tc.timeouts
-        self.sdo = SdoClient(ctl.transport, io.node_id, io.label, t.sdo_s, t.sdo_retries)
-
-    def masks_bit13(self) -> bool:
-        return self.phase in ("low", "run", "back")
 
     def _u32(self, mm: float) -> bytes:
         return max(1, round(mm * self.ax.scale.counts_per_unit)).to_bytes(4, "little")
 
-    def request_stop(self, ctl: MotionController, result: str, message: str) -> float:
+    def request_stop(self, k: int, result: str, message: str) -> float:
         # the drive runs the homing: controlword bit 4 low interrupts it (the drive stops
         # with its own ramp), then back to CSP on the position it stands
         if self._stop_req is None:
             self._stop_req = (result, message)
         return 1.0 + 20 * self.period_s
 
-    def between(self, ctl: MotionController) -> None:
+    def between(self, k: int) -> Transfers:
         if not self.started or (self._stop_req is not None and self.phase == "setup"):
             return
-        sdo = self.sdo
+        i = self._slot().index
         if self.phase == "setup":
             h = self.h
-            sdo.download(0x6098, 0, h.drive_method.to_bytes(1, "little", signed=True))
+            yield SdoDownload(i, 0x6098, 0, h.drive_method.to_bytes(1, "little", signed=True))
             if h.switch_vel is not None:
-                sdo.download(0x6099, 1, self._u32(h.switch_vel))
+                yield SdoDownload(i, 0x6099, 1, self._u32(h.switch_vel))
             if h.zero_vel is not None:
-                sdo.download(0x6099, 2, self._u32(h.zero_vel))
+                yield SdoDownload(i, 0x6099, 2, self._u32(h.zero_vel))
             if h.drive_acc is not None:
-                sdo.download(0x609A, 0, self._u32(h.drive_acc))
+                yield SdoDownload(i, 0x609A, 0, self._u32(h.drive_acc))
             offset = round(h.home_offset * self.ax.scale.counts_per_unit)
-            sdo.download(0x607C, 0, offset.to_bytes(4, "little", signed=True))
-            sdo.download(0x6060, 0, bytes([cia402.MODE_HM]))
+            yield SdoDownload(i, 0x607C, 0, offset.to_bytes(4, "little", signed=True))
+            yield SdoDownload(i, 0x6060, 0, bytes([cia402.MODE_HM]))
             self.phase = "low"
             self.state("SETUP")
         elif self.phase == "back":
-            actual = sdo.upload_int(0x6064, 0)
-            sdo.download(0x607A, 0, actual.to_bytes(4, "little", signed=True))
-            sdo.download(0x6060, 0, bytes([cia402.MODE_CSP]))
-            self.io.hold = actual
+            actual = _value((yield SdoUpload(i, 0x6064, 0, signed=True)))
+            yield SdoDownload(i, 0x607A, 0, actual.to_bytes(4, "little", signed=True))
+            yield SdoDownload(i, 0x6060, 0, bytes([cia402.MODE_CSP]))
+            self._slot().hold = actual
             self.phase = "csp"
             self.state("CSP")
 
-    def cycle(self, ctl: MotionController, k: int) -> tuple[int, int]:
-        io = self.io
-        inp = io.input
+    def cycle(self, k: int) -> tuple[DriveCommand, int]:
+        io = self._slot()
+        inp = self._input()
         actual = inp.actual if inp is not None else io.target
         if self.phase == "setup":
             if self._stop_req is not None:  # not in homing mode yet: nothing to undo
                 self.report.setpoint_mm = self.ax.scale.from_counts(actual)
-                self.finish(ctl, k, False, *self._stop_req)
-            return cia402.CW_ENABLE, actual
+                self.finish(k, False, *self._stop_req)
+            return DriveCommand.ENABLE, actual
         if self._stop_req is not None and self.phase in ("low", "run"):
             self._error = self._stop_req
             self.phase = "back"
-            return cia402.CW_ENABLE, actual  # bit 4 low: interrupts the homing
+            return DriveCommand.ENABLE, actual  # bit 4 low: interrupts the homing
         if self.phase == "low":
             self.phase = "run"
             self._k_start = k
-            return cia402.CW_ENABLE, actual
+            return DriveCommand.ENABLE, actual
         if self.phase == "run":
             self.state("HOMING")
             sw = inp.statusword if inp is not None else 0
@@ -853,26 +895,26 @@ class DriveHomingJob(Job):
                                (f"homing not attained within {self.h.timeout_s:g} s (method "
                                 f"{self.h.drive_method}, statusword {sw:04X}h)"))
             else:
-                return cia402.CW_ENABLE | CW_HOMING_START, actual
+                return DriveCommand.HOMING_START, actual
             self.phase = "back"
-            return cia402.CW_ENABLE, actual  # bit 4 low: ends (or interrupts) the homing
+            return DriveCommand.ENABLE, actual  # bit 4 low: ends (or interrupts) the homing
         if self.phase == "back":
-            return cia402.CW_ENABLE, actual
+            return DriveCommand.ENABLE, actual
         # phase csp: back in CSP, holding
         self.report.setpoint_mm = self.ax.scale.from_counts(io.hold)
         if self._error is None:
             self.report.home_offset_mm = 0.0  # the drive's position is now homed
-            self.finish(ctl, k, True, MotionResult.FINISHED.name,
+            self.finish(k, True, MotionResult.FINISHED.name,
                         f"drive homing method {self.h.drive_method} attained")
         elif self._error is self._stop_req:
             unit = self.ax.scale.unit
             result, message = self._error
-            self.finish(ctl, k, False, result,
+            self.finish(k, False, result,
                         f"{message}: the drive's homing interrupted (controlword bit 4 low), "
                         f"stopped at {self.report.setpoint_mm:.4f} {unit}")
         else:
-            self.finish(ctl, k, False, *self._error)
-        return cia402.CW_ENABLE, io.hold
+            self.finish(k, False, *self._error)
+        return DriveCommand.ENABLE, io.hold
 
 
 def make_home_job(ax: AxisConfig, period_s: float) -> Job:

@@ -1,7 +1,9 @@
 """The demo's pick and place on the softMC conveyor model (:mod:`controller.conveyor`).
 
-One application (:class:`PickPlace`, the :class:`~controller.canopen.master.app.Application`
-interface) runs a :class:`~controller.conveyor.RobotGroup` ``robot`` on a linear
+One setpoint source (:class:`PickPlace`, a pure
+:class:`~controller.canopen.master.source.SetpointSource`: the cycle hands it a frozen
+context, it returns the setpoint, its typed status and its events) runs a
+:class:`~controller.conveyor.RobotGroup` ``robot`` on a linear
 :class:`~controller.conveyor.MovingFrame` ``belt``, one sample per controller cycle:
 
 - master source: the belt travel [mm] the controller estimates from the encoder (position,
@@ -24,12 +26,16 @@ interface) runs a :class:`~controller.conveyor.RobotGroup` ``robot`` on a linear
   frame detached, dwell ``place.dwell_s``) -> WAIT.  Items that pass the window while the
   robot places are missed (30238) when the robot takes them from the buffer;
 - output: the robot group's setpoint (world TCP; angle about z) is the master of the
-  controller's :class:`~controller.tracking.Tracker`, engaged once (absolute) at the start and
-  SYNCED from then on, so it passes the setpoint through unchanged to the kinematics and
+  source's own pass-through :class:`~controller.tracking.Tracker`, engaged once (absolute) at
+  the start and SYNCED from then on, so it passes the setpoint through unchanged to the kinematics and
   counts (its master limits are lifted: the robot group limits its own motions with the
   tracker's sync limits).  ``imfs`` (the cycle record, status line, telemetry, PLC 2001h) is
   the robot group's.  Per-item figures come from the robot's ``ItemRecord`` (engaged and
-  synchronised samples, peak errors, status): ``Item.model`` in telemetry.jsonl.
+  synchronised samples, peak errors, status): ``Item.model`` in telemetry.jsonl;
+- a PLC's commands come in the context: an engage 0 (:class:`~controller.canopen.master.source.Engage`) de-syncs
+  the robot (the item being approached or followed is missed), 3/5 are ignored (the sequence
+  engages); a :class:`~controller.canopen.master.source.Trigger` is a photo-eye edge; a lost master
+  (:class:`~controller.canopen.master.source.MasterEvent`) misses the item being followed.
 
 The simulated side (:class:`PhotoEye`) knows the true belt travel (the encoder's speed
 profile) and the items' belt positions (seeded pitch, lateral offset and angle), and turns
@@ -58,15 +64,25 @@ from ...conveyor import (
 from ...conveyor.location import q_to_axis_angle, vec3
 from ...conveyor.sources import SourceState
 from ...limits import CartesianLimits, Limits
-from ...tracking import Imfs, MasterEstimate, Mode, MotionState, Tracker, TrackState
+from ...tracking import Imfs, Mode, MotionState, Tracker, TrackState
 from ...errors import StateError
 from ..config.demo import DemoConfig
-from ..master.app import AppStatus
-from ..master.events import EventKind as MasterEventKind
 from ..config.plc import TriggerOverflow
+from ..master.events import EventKind as MasterEventKind
+from ..master.source import (
+    CycleContext,
+    Engage,
+    MasterEvent,
+    SourceEvent,
+    SourceOutput,
+    SourceStart,
+    SourceStatus,
+    TrackTypes,
+)
+from .follow import desync_on_master_loss
 
 if TYPE_CHECKING:
-    from ..master.cycle import Controller
+    from ..config.tracking import TrackingConfig
     from ..slave.encoder import SpeedProfile
 
 
@@ -208,7 +224,8 @@ class PickPlace:
 
     demo: DemoConfig
     eye: PhotoEye | None = None
-    step: Step = Step.WAIT
+    #: where the sequence is (:class:`Step`)
+    stage: Step = Step.WAIT
     #: the last ``history`` finished items (placed or missed), oldest first; the counts of
     #: all of them are ``placed`` / ``missed`` (a run of weeks keeps O(1) items)
     done_items: deque[Item] = field(default_factory=deque)
@@ -234,9 +251,12 @@ class PickPlace:
     _end_cycle: int | None = None
     _drops_unreported: int = 0
     _drop_reported: float | None = None
-    #: the tracked types a PLC set before the start (2015h), over .tracking.items
-    _types: frozenset[int] | None = None
-    _types_set: bool = False
+    #: the pass-through tracker whose setpoint goes out (made at the start)
+    tracker: Tracker | None = None
+    _tc: TrackingConfig | None = None
+    _T: float = 0.0
+    _prev: MotionState | None = None
+    _events: list[SourceEvent] = field(default_factory=list)
 
     @property
     def imfs(self) -> int:
@@ -253,41 +273,47 @@ class PickPlace:
                     return TrackState(link.tracker.state)
         return TrackState.OFF
 
-    def start(self, ctl: Controller, cycle: int) -> None:
+    def start(self, start: SourceStart) -> SourceStatus:
         if self.eye is None:
             raise ValueError("PickPlace needs a photo-eye")
-        self._end_cycle = cycle + int(self.demo.duration_s / ctl.cfg.period_s)
-        conv = ctl.cfg.tracking.conveyor
+        tc = self._tc = start.tracking
+        T = self._T = start.period_s
+        self._end_cycle = start.cycle + int(self.demo.duration_s / T)
+        conv = tc.conveyor
         o, d = conv.origin, conv.direction
         pe = self.demo.photo_eye
-        w0, w1 = ctl.cfg.tracking.window
+        w0, w1 = tc.window
         self.frame = MovingFrame(
             "belt", directions=[d],
             origin=Location.at(*(o[i] + d[i] * pe + (self.demo.pick_height if i == 2 else 0.0)
                                  for i in range(3))),
             window=Window.single(w0 - pe, w1 - pe))
-        tp = ctl.cfg.tracking.tracker
-        sp = ctl.tracker.setpoint
-        self._T = ctl.cfg.period_s
+        tp = tc.tracker
+        sp = start.pose
         # TrackerParams fills the sync limits in (from the robot's maxima or the defaults)
         assert tp.sync_trans is not None and tp.sync_rot is not None
-        self.robot = RobotGroup("robot", replace(tp, sample_time_s=ctl.cfg.period_s),
+        self.robot = RobotGroup("robot", replace(tp, sample_time_s=T),
                                 start=Location.from_axis_angle(sp.pos, (0.0, 0.0, 1.0), sp.ang),
                                 motion_limits=CartesianLimits(tp.sync_trans, tp.sync_rot))
-        types = self._types if self._types_set else ctl.cfg.tracking.track_types
-        if types is not None:
-            self.robot.track_types(self.frame, types)
+        if tc.track_types is not None:
+            self.robot.track_types(self.frame, tc.track_types)
         self._prev = sp
-        # the controller's tracker passes the robot's setpoint through (SYNCED, absolute);
-        # the robot group limits its own motions, so the master limits are the robot's
+        # the pass-through tracker (SYNCED, absolute) whose setpoint goes out: the robot
+        # group limits its own motions, so the master limits are the robot's
         big = Limits(1e9, 1e9, 1e9)
-        ctl.tracker = Tracker(replace(tp, master_max_trans=big, master_max_rot=big), sp)
-        ctl.tracker.engage(Mode.ABSOLUTE)
+        self.tracker = Tracker(replace(tp, master_max_trans=big, master_max_rot=big), sp)
+        self.tracker.engage(Mode.ABSOLUTE)
+        return self.status()
 
-    def _across(self, ctl: Controller) -> tuple[float, float, float]:
-        d = ctl.cfg.tracking.conveyor.direction
+    def _across(self) -> tuple[float, float, float]:
+        d = self._config().conveyor.direction
         n = math.hypot(d[0], d[1])
         return (-d[1] / n, d[0] / n, 0.0) if n > 1e-9 else (0.0, 1.0, 0.0)
+
+    def _config(self) -> TrackingConfig:
+        if self._tc is None:
+            raise StateError("the conveyor demo is not started (start() reads .tracking)")
+        return self._tc
 
     def _finish_item(self, item: Item, outcome: str, reason: str = "") -> None:
         if item.outcome != "pending":
@@ -329,16 +355,42 @@ class PickPlace:
             raise StateError("the conveyor demo is not set up (setup() makes its robot)")
         return self.robot, self.frame
 
-    def update(self, ctl: Controller, cycle: int, belt: MasterEstimate) -> MotionState:
+    def step(self, ctx: CycleContext) -> SourceOutput:
+        """One cycle of the sequence (see the module docstring): the PLC's commands, a lost
+        master, the photo-eye's edges, the sequence, the robot group; its setpoint through the
+        pass-through tracker."""
+        r, f = self._cell()
+        tracker = self.tracker
+        assert tracker is not None
+        self._events = []
+        for cmd in ctx.commands:
+            if isinstance(cmd, Engage):
+                self._engage(cmd.mode)
+            elif isinstance(cmd, TrackTypes):
+                self._track_types(cmd.types)
+            elif self.eye is not None:
+                self.eye.trigger(cmd.t_ns, item_type=cmd.item_type)
+        if ctx.master.event in (MasterEvent.SILENT, MasterEvent.LOST):
+            desync_on_master_loss(tracker, ctx.master.event)
+            self._master_lost()
+        m = self._update(ctx)
+        out = tracker.update(m)
+        return SourceOutput(out.setpoint, self.status(), target=tracker.target(m),
+                            events=tuple(self._events), done=self._done(ctx.cycle))
+
+    def _update(self, ctx: CycleContext) -> MotionState:
         r, f = self._cell()
         T = self._T
-        t_now = ctl.t0 + cycle * ctl.period_ns
+        cycle = ctx.cycle
+        belt = ctx.master.estimate
+        master_ready = ctx.master.ready
+        t_now = ctx.t_ns
         f.set_master([SourceState(belt.pos, belt.vel, belt.acc)], r.k)
         for item in self.eye.edges_until(t_now):
-            s_meas = ctl.master.belt_mm if ctl.master.belt_mm is not None else belt.pos
+            s_meas = ctx.master.belt_mm if ctx.master.belt_mm is not None else belt.pos
             item.s_item = s_meas - belt.vel * (t_now - item.t_edge_ns) * 1e-9
             item.trigger_cycle = cycle
-            if r.buffer.full and not self._make_room(ctl, cycle, t_now, item):
+            if r.buffer.full and not self._make_room(ctx, item):
                 continue
             e = r.trigger(f, values=[item.s_item], item_type=item.item_type)
             item.entry_id = e.id
@@ -346,30 +398,30 @@ class PickPlace:
             types = r.tracked_types(f)
             if types is not None and item.item_type not in types:
                 self._finish_item(item, "ignored", f"type {item.item_type} not tracked")
-        step = self.step
+        step = self.stage
         if step == Step.WAIT:
             entry = r.buffer.current(f.name, r.tracked_types(f))
             while entry is not None and (entry.id not in self._by_entry
                                          or self._by_entry[entry.id].outcome != "pending"):
                 r.nextitem(f)  # (an item de-synced by STOP stays in the buffer: drop it)
                 entry = r.buffer.current(f.name, r.tracked_types(f))
-            if entry is not None and not r.links and ctl.master.ready:
+            if entry is not None and not r.links and master_ready:
                 item = self._by_entry[entry.id]
                 self.current = item
                 r.set_master_frame(f, Mode.RELATIVE)
-                n = self._across(ctl)
+                n = self._across()
                 z = f.zero(entry).pos
                 r.moves(Location((z[0] + n[0] * item.lateral, z[1] + n[1] * item.lateral,
                                   z[2]), q_axis_angle((0.0, 0.0, 1.0), item.angle)),
                         name=f"approach item {item.index}")
-                self.step = Step.APPROACH
+                self.stage = Step.APPROACH
         elif step == Step.APPROACH:
             if r.imfs == Imfs.SYNCHRONIZED and not r.virtual.busy:
                 self._until = cycle + round(self.demo.pick_dwell_s / T)
-                self.step = Step.FOLLOW
+                self.stage = Step.FOLLOW
         elif step == Step.FOLLOW:
             item = self.current
-            item.max_error_mm = max(item.max_error_mm, ctl.last_tracking_error)
+            item.max_error_mm = max(item.max_error_mm, ctx.tracking_error_mm)
             if cycle >= self._until:
                 item.picked_cycle = cycle
                 item.u_pick = self.demo.photo_eye + belt.pos - item.s_item
@@ -378,7 +430,7 @@ class PickPlace:
                 p = self.demo.place_position
                 r.moves(Location(tuple(p), q_axis_angle((0.0, 0.0, 1.0), self.demo.place_angle)),
                         name="place")
-                self.step = Step.PLACE
+                self.stage = Step.PLACE
         elif step == Step.PLACE:
             item = self.current
             if not r.virtual.busy and not r.links:
@@ -386,9 +438,10 @@ class PickPlace:
                     item.placed_cycle = cycle
                 if (cycle - item.placed_cycle) * T >= self.demo.place_dwell_s:
                     self._finish_item(item, "placed")
-                    self.step = Step.WAIT
-        if ctl.tracker.state is TrackState.OFF and ctl.master.ready:
-            ctl.tracker.engage(Mode.ABSOLUTE)  # (de-synced by a silent encoder: follow again)
+                    self.stage = Step.WAIT
+        tracker = self.tracker
+        if tracker is not None and tracker.state is TrackState.OFF and master_ready:
+            tracker.engage(Mode.ABSOLUTE)  # (de-synced by a silent encoder: follow again)
         out = r.update()
         imfs = int(out.imfs)
         if not self.imfs_log or self.imfs_log[-1] != imfs:
@@ -406,16 +459,17 @@ class PickPlace:
             if ev.kind == EventKind.ITEM_MISSED and ev.item in self._by_entry:
                 item = self._by_entry[ev.item]
                 self._finish_item(item, "missed", f"left the window ({ev.code})")
-                if self.step in (Step.APPROACH, Step.FOLLOW):
-                    self.step = Step.WAIT
-                ctl.events.add(cycle, (t_now - ctl.t0) * 1e-9, "demo", MasterEventKind.ITEM_MISSED,
-                               f"item {item.index} missed ({ITEM_MISSED_CODE}): {ev.message}",
-                               level=20)
+                if self.stage in (Step.APPROACH, Step.FOLLOW):
+                    self.stage = Step.WAIT
+                self._events.append(SourceEvent(
+                    "demo", MasterEventKind.ITEM_MISSED,
+                    f"item {item.index} missed ({ITEM_MISSED_CODE}): {ev.message}", level=20))
         loc = out.setpoint
         axis, ang = q_to_axis_angle(loc.ori)
         if axis[2] < 0:
             ang = -ang
         prev = self._prev
+        assert prev is not None  # (set by start)
         vel = vec3(out.velocity)
         v0, v1, v2 = vel
         u0, u1, u2 = prev.vel
@@ -425,7 +479,7 @@ class PickPlace:
         self._prev = m
         return m
 
-    def _make_room(self, ctl: Controller, cycle: int, t_now: int, item: Item) -> bool:
+    def _make_room(self, ctx: CycleContext, item: Item) -> bool:
         """The robot's trigger buffer is full: drop the new item (``drop_newest``) or the
         oldest waiting one that is not being tracked (``drop_oldest``); count it, report it
         (at most one event per second); True when ``item`` may go in now."""
@@ -442,69 +496,63 @@ class PickPlace:
                           f"entries, {self.trigger_overflow.value})")
         self.triggers_dropped += 1
         self._drops_unreported += 1
-        t_s = (t_now - ctl.t0) * 1e-9
+        t_s = ctx.t_s
         if self._drop_reported is None or t_s - self._drop_reported >= 1.0:
             n, self._drops_unreported = self._drops_unreported, 0
             self._drop_reported = t_s
-            ctl.events.add(cycle, t_s, "demo", "trigger_dropped",
-                           f"trigger buffer of robot {r.name!r} full "
-                           f"({r.buffer.capacity} entries): item {victim.index} dropped"
-                           + (f" ({n} dropped since the last report)" if n > 1 else ""),
-                           f"{self.trigger_overflow.value} (the run goes on)")
+            self._events.append(SourceEvent(
+                "demo", MasterEventKind.TRIGGER_DROPPED,
+                f"trigger buffer of robot {r.name!r} full "
+                f"({r.buffer.capacity} entries): item {victim.index} dropped"
+                + (f" ({n} dropped since the last report)" if n > 1 else ""),
+                f"{self.trigger_overflow.value} (the run goes on)"))
         return victim is not item
 
-    def engage(self, ctl: Controller, mode: Mode) -> bool:
+    def _engage(self, mode: Mode) -> None:
         """The PLC's 2005h: 0 de-syncs the robot from the belt (``STOP``: the item being
         approached or followed is missed); 3/5 are the program's to give (ignored)."""
         if mode == Mode.OFF and self.robot is not None:
-            if self.current is not None and self.step in (Step.APPROACH, Step.FOLLOW):
+            if self.current is not None and self.stage in (Step.APPROACH, Step.FOLLOW):
                 self._finish_item(self.current, "missed", "disengaged by the PLC")
-                self.step = Step.WAIT
+                self.stage = Step.WAIT
             self.robot.stop()
-        return True
 
-    def trigger(self, t_ns: int, item_type: int = 0) -> bool:
-        """A PLC's item trigger: an item edge of the photo-eye, an item of ``item_type``
-        (counted once the cycle takes the item in)."""
-        if self.eye is None:
-            return False
-        self.eye.trigger(t_ns, item_type=item_type)
-        return True
-
-    def track_types(self, types: frozenset[int] | None) -> bool:
+    def _track_types(self, types: frozenset[int] | None) -> None:
         """A PLC's tracked item types (2015h): the robot tracks only ``types`` on the belt
-        from its next update (None: every type); the waiting items of other types are
-        ignored now, the one being approached or followed is still picked."""
+        from this update (None: every type); the waiting items of other types are ignored
+        now, the one being approached or followed is still picked."""
         if self.robot is not None and self.frame is not None:
             self.robot.track_types(self.frame, types)
-        else:
-            self._types, self._types_set = types, True
         if types is not None:
             for item in list(self._by_entry.values()):
                 if item.outcome == "pending" and item is not self.current \
                         and item.item_type not in types:
                     self._finish_item(item, "ignored", f"type {item.item_type} not tracked")
-        return True
 
-    def status(self) -> AppStatus:
-        """The robot group's tracking, the photo-eye's count, the items missed."""
-        return AppStatus(self.track_state if self.robot is not None else None,
-                         Imfs(self.imfs) if self.robot is not None else None,
-                         self.eye.detected if self.eye is not None else None, self.missed,
-                         self.triggers_dropped, self.ignored)
+    def status(self) -> SourceStatus:
+        """The robot group's tracking, the pass-through tracker's, the photo-eye's count, the
+        items missed and ignored."""
+        tr = self.tracker
+        detected = self.eye.detected if self.eye is not None else None
+        if self.robot is None or tr is None:
+            return SourceStatus(items_detected=detected, items_missed=self.missed,
+                                triggers_dropped=self.triggers_dropped,
+                                items_ignored=self.ignored)
+        return SourceStatus(self.track_state, Imfs(self.imfs), tr.state, tr.imfs, tr.error,
+                            detected, self.missed, self.triggers_dropped, self.ignored)
 
-    def master_lost(self, ctl: Controller, cycle: int) -> None:
-        if self.current is not None and self.step in (Step.APPROACH, Step.FOLLOW):
+    def _master_lost(self) -> None:
+        if self.current is not None and self.stage in (Step.APPROACH, Step.FOLLOW):
             self._finish_item(self.current, "missed", "encoder silent")
             self._cell()[0].stop()
-            self.step = Step.WAIT
+            self.stage = Step.WAIT
 
-    def done(self, ctl: Controller, cycle: int) -> bool:
+    def _done(self, cycle: int) -> bool:
         if self._end_cycle is not None and cycle >= self._end_cycle:
             return True
         all_seen = self.eye is not None and self.eye.exhausted \
             and self.finished == self.eye.detected
-        if not (all_seen and self.step == Step.WAIT):
+        if not (all_seen and self.stage == Step.WAIT):
             return False
         r = self._cell()[0]
         return not r.links and not r.virtual.busy

@@ -31,7 +31,7 @@ from ..protocol.pdo import PdoCodec
 
 if TYPE_CHECKING:
     from ..config import ControllerConfig
-    from ..master.app import Application
+    from ..master.source import SetpointSource
     from ..master.cycle import Controller
 
 SYNC_COB = 0x80
@@ -164,7 +164,7 @@ def compare(recorded: dict[str, list], replayed: dict[str, list]) -> Comparison:
 
 
 def replay(cfg: ControllerConfig, stream: Sequence[int | None],
-           app: Application | None = None,
+           source: SetpointSource | None = None,
            setup: Callable[[Controller, object], None] | None = None,
            max_cycles: int | None = None) -> tuple[Controller, list[Frame]]:
     """Run the controller in stepped time with the encoder sending ``stream`` (one sample per
@@ -175,12 +175,14 @@ def replay(cfg: ControllerConfig, stream: Sequence[int | None],
     """
     from ..master.cycle import Controller
     from ..slave.world import SimWorld
+    from .follow import ConveyorFollow
 
     c = cfg.tracking.conveyor
     with SimWorld(cfg, record=True) as world:
         enc = world.device(c.node)
         enc.on_sync = StreamPlayer(enc, stream, c.index, c.sub_index)
-        ctl = Controller(cfg, world.transport, app)
+        ctl = Controller(cfg, world.transport,
+                         source if source is not None else ConveyorFollow())
         ctl.boot()
         ctl.start()
         if setup is not None:

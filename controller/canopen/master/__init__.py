@@ -6,7 +6,8 @@
 - :mod:`.supervision` — heartbeat and EMCY consumers;
 - :mod:`.events` — the event log;
 - :mod:`.axisio`, :mod:`.masterio` — one drive's PDOs; the encoder input and its estimator;
-- :mod:`.app` — what the cycle asks each SYNC for the master state (the application);
+- :mod:`.source` — the setpoint-source protocol: the frozen context the cycle hands a source
+  each SYNC, the setpoints, typed status and requests it returns;
 - :mod:`.checkbus` — compare a bus with its configuration;
 - :mod:`.plc_node` — the controller's own CANopen node (for a PLC).
 

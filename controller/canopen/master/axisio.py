@@ -3,7 +3,10 @@
 The TPDO (6041h statusword + 6064h position actual) is unpacked in the receive callback and
 kept as one tuple ``(statusword, actual_counts, t_ns, cycle)``: a snapshot taken inside the
 callback, so two values of different frames are never mixed.  A TPDO shorter than its
-mapping is dropped and counted (:mod:`.frames`), never unpacked.
+mapping is dropped and counted (:mod:`.frames`), never unpacked.  Where the drive maps them,
+the digital inputs 60FDh (a TPDO of transmission 1: limit, home and slow-down switches) and
+touch probe 1 (60B9h + 60BAh in one TPDO, event-driven) are kept too (the axis jobs read
+them in the source's context).
 """
 
 from __future__ import annotations
@@ -82,6 +85,22 @@ class AxisIO:
         self._tp_what = f"TPDO{tp.number} of {self.label}"
         transport.subscribe(tp.cob_id, self._on_tpdo)
         self.rpdo_cob = rp.cob_id
+        #: 60FDh digital inputs of the last TPDO (None: no TPDO of transmission 1 maps them)
+        self.inputs: int | None = None
+        di = pdos.find("tpdo", [(0x60FD, 0)])
+        self.inputs_mapped = di is not None and di.transmission == 1
+        if di is not None and self.inputs_mapped:
+            self._di = PdoCodec(di, od)
+            self._di_pos = self._di.position(0x60FD)
+            transport.subscribe(di.cob_id, self._on_inputs)
+        #: (60B9h, 60BAh) of the last touch-probe TPDO since the last arming (None: none)
+        self.probe: tuple[int, int] | None = None
+        pr = pdos.find("tpdo", [(0x60B9, 0), (0x60BA, 0)])
+        self.probe_mapped = pr is not None
+        if pr is not None:
+            self._pr = PdoCodec(pr, od)
+            self._pr_pos = (self._pr.position(0x60B9), self._pr.position(0x60BA))
+            transport.subscribe(pr.cob_id, self._on_probe)
 
     def _on_tpdo(self, can_id: int, data: bytes, t_ns: int) -> None:
         if len(data) != self._tp_size and not self.hygiene.check_length(
@@ -89,6 +108,13 @@ class AxisIO:
             return
         v = self._unpack(data)
         self.input = DriveInput(v[self._sw_pos], v[self._act_pos], t_ns, self.cycle)
+
+    def _on_inputs(self, can_id: int, data: bytes, t_ns: int) -> None:
+        self.inputs = int(self._di.unpack(data)[self._di_pos])
+
+    def _on_probe(self, can_id: int, data: bytes, t_ns: int) -> None:
+        v = self._pr.unpack(data)
+        self.probe = (int(v[self._pr_pos[0]]), int(v[self._pr_pos[1]]))
 
     def fresh(self, cycle: int) -> bool:
         return self.input is not None and self.input.cycle == cycle

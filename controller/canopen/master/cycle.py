@@ -10,20 +10,23 @@ One cycle k (period T = ``master.sync_period``; controller time in integer ns):
 3. supervision (heartbeats, EMCY, statuswords); master sample -> belt travel -> estimator
    -> the belt state at t_{k+1} (the drives apply this cycle's targets at SYNC k+1);
 4. by phase: ENABLING walks every drive through the 402 state machine one transition per
-   cycle, the target being the drive's actual position (held once it is enabled);
-   RUNNING asks the application for the master state (for SYNC k+1+d, d =
+   cycle, the target being the drive's actual position (held once it is enabled), and
+   starts the setpoint source when all are enabled; RUNNING hands the source a frozen
+   :class:`~.source.CycleContext` (the master estimate for SYNC k+1+d, d =
    ``drive_delay_cycles``: the drives reach a target one interpolation period after they
-   apply it), runs ``Tracker.update``, the
-   kinematics and the counts conversion, and sends each drive its RPDO (6040h = 0Fh,
-   607Ah = counts); STOPPING sends quick stop (6040h = 02h) until every drive stands still;
+   apply it; the drives' states; the PLC's commands) and takes its
+   :class:`~.source.SourceOutput`: a tool setpoint goes through the kinematics, axis
+   setpoints directly to the counts conversion; the limits are checked and each drive gets
+   its RPDO (6040h = 0Fh, 607Ah = counts); the source's events are logged, its quick stop
+   made; STOPPING sends quick stop (6040h = 02h) until every drive stands still;
 5. heartbeat producer; timing figures; the cycle record.
 
 Reactions (every one is an :class:`~controller.canopen.master.events.Event` with its cycle):
 a drive fault, a drive EMCY, a lost heartbeat, a node leaving OPERATIONAL, the CSP
 following-error bit (6041h bit 13), a drive that leaves OPERATION ENABLED, a drive TPDO
 missing for ``silent_cycles``, a setpoint outside an axis limit -> quick stop of all
-drives.  The encoder silent for ``silent_cycles`` -> ``Tracker.disengage()``: the de-sync
-runs on the estimator's extrapolated master.
+drives.  The encoder silent for ``silent_cycles`` -> the source is told
+(:class:`~.source.MasterEvent`) and de-syncs on the estimator's extrapolated master.
 
 The same code runs in stepped time (tests, demo) and real time (``run``): the only waiting
 is ``transport.run_until``.
@@ -43,18 +46,33 @@ from typing import TYPE_CHECKING
 from ...errors import CanError, ConfigError
 from ...kinematics import CountsConverter
 from ...kinematics import create as create_kinematics
-from ...tracking import MasterEstimate, MotionState, Tracker, TrackError, TrackState
+from ...tracking import MasterEstimate, MotionState, TrackState
 from ..config.busload import BusLoad, bus_load, check_bus_load
 from ..config.reactions import Disturbance, Reaction
 from ..io.transport import GuardedTransport, Transport
 from ..protocol import cia402
 from ..protocol.cia402 import State, decode_statusword
 from ..protocol.frames import FrameHygiene
-from .app import Application, ConveyorFollow
+from ..protocol.sdo import SdoClient
 from .axisio import AxisIO
 from .boot import BootResult, boot
 from .events import EventLog
 from .masterio import MasterInput
+from .source import (
+    NO_STATUS,
+    AxisSetpoints,
+    Command,
+    CycleContext,
+    DriveView,
+    MasterEvent,
+    MasterView,
+    SdoUpload,
+    SetpointSource,
+    SourceOutput,
+    SourceStart,
+    SourceStatus,
+    Transfers,
+)
 from .stopping import (
     SDO_POLL_CYCLES,
     DriveStop,
@@ -165,7 +183,7 @@ class Controller:
     GC_EVERY_CYCLES = 1000
 
     def __init__(self, cfg: ControllerConfig, transport: Transport,
-                 app: Application | None = None, *, events: EventLog | None = None,
+                 source: SetpointSource, *, events: EventLog | None = None,
                  keep_trace: bool | int = True,
                  on_cycle: Callable[[Controller, CycleRecord], None] | None = None,
                  enforce_bus_load: bool = True) -> None:
@@ -187,7 +205,9 @@ class Controller:
         transport = GuardedTransport(transport, self.hygiene)
         self.transport = transport
         self.clock = transport.clock
-        self.app: Application = app if app is not None else ConveyorFollow()
+        #: what makes the setpoints while RUNNING (:mod:`.source`); the cycle calls only its
+        #: ``start`` and ``step``
+        self.source = source
         self.events = events if events is not None else EventLog()
         self.keep_trace = keep_trace
         self.on_cycle = on_cycle
@@ -222,7 +242,22 @@ class Controller:
         self._bad_reported: set[int] = set()
         #: the drives' and the encoder's labels (their heartbeat loss always stops)
         self._motion_labels = {a.label for a in self.axes} | {self.master.label}
-        self.tracker: Tracker | None = None
+        #: the source has been started (tracking runs: a PLC's engage can act)
+        self.tracking = False
+        #: the source's status after its last start/step (the record, the PLC node)
+        self.status: SourceStatus = NO_STATUS
+        #: the source's output of the last RUNNING cycle (None before the first)
+        self.last_output: SourceOutput | None = None
+        #: the source asked to end the run (its last output's ``done``)
+        self.source_done = False
+        #: the PLC's commands since the last cycle (:meth:`command`), in arrival order
+        self._commands: list[Command] = []
+        self._master_event = MasterEvent.NONE
+        #: the SDO program of the source's last output, run before the next SYNC
+        self._transfers: Transfers | None = None
+        self._sdo_clients: dict[int, SdoClient] = {}
+        #: the drives (indices) a transfer put in homing mode (6060h = 6)
+        self._homing_mode: set[int] = set()
         self.phase = Phase.IDLE
         self.k = 0
         self.t0 = 0
@@ -244,7 +279,6 @@ class Controller:
         self._master_for: dict[int, MotionState] = {}
         self._drive_silent = [0] * len(self.axes)
         self._faults_reported: set[str] = set()
-        self.last_output = None
         #: |actual - target| [mm] of the last cycle while the tracker is not OFF
         self.last_tracking_error = 0.0
         #: the controller's own NMT state, sent in its heartbeat (5 OPERATIONAL; the PLC
@@ -286,7 +320,11 @@ class Controller:
 
     # -- the cycle ---------------------------------------------------------------------------
     def step(self) -> CycleRecord | None:
-        """Run one cycle (SYNC k ... RPDOs for SYNC k+1)."""
+        """Run one cycle (SYNC k ... RPDOs for SYNC k+1); first the SDO transfers the
+        source asked for in the last cycle."""
+        program, self._transfers = self._transfers, None
+        if program is not None and self.phase is Phase.RUNNING:
+            self._run_transfers(program)
         k = self.k
         clock = self.clock
         transport = self.transport
@@ -416,6 +454,7 @@ class Controller:
         t_s = (deadline - self.t0) * 1e-9
         self._supervise(k, t_s)
         event, est = self.master.update(k, (t_sent - deadline) * 1e-9)
+        self._master_event = _MASTER_EVENTS[event]
         if event == "silent":
             self._master_silent(k, t_s)
         elif event == "outlier":
@@ -432,8 +471,9 @@ class Controller:
         if phase is Phase.ENABLING:
             self._enable_step(k, t_s)
         elif phase is Phase.RUNNING:
-            setpoint = self._run_step(k, t_s, est)
+            setpoint = self._run_step(k, t_s, deadline, est)
         else:
+            self._commands.clear()  # (no source runs any more: nothing takes them)
             self._stop_step(k)
         if self.keep_trace or self.on_cycle is not None:
             return self._record(k, t_s, setpoint)
@@ -477,13 +517,15 @@ class Controller:
             a.send(cw, target)
         if ready and self.master.ready:
             joints = self.counts.from_counts([a.hold for a in self.axes])
-            self.tracker = Tracker(self.tc.tracker, self.kinematics.pose(joints))
             self.phase = Phase.RUNNING
             self.events.add(k, t_s, "controller", "enabled",
                             "all drives in OPERATION ENABLED, tracking starts at "
                             + ", ".join(f"{a.axis}={j:.3f}" for a, j in zip(self.axes, joints)),
                             level=20)
-            self.app.start(self, k)
+            self.status = self.source.start(SourceStart(
+                k, t_s, self.t0 + k * self.period_ns, self.cfg.period_s, self.tc, joints,
+                self.kinematics.pose(joints), self._drive_views(k)))
+            self.tracking = True
         elif now - self._enable_start_ns > self.tc.timeouts.enable_s * 1e9:
             for a in self.axes:
                 inp = a.input
@@ -498,16 +540,104 @@ class Controller:
             self._fail(k, t_s, self.master.label, "enable_timeout",
                        f"no encoder samples within {self.tc.timeouts.enable_s:g} s")
 
-    def _run_step(self, k: int, t_s: float, est: MasterEstimate | None) -> tuple[float, ...]:
-        tracker = self.tracker
-        assert tracker is not None
+    def _drive_views(self, k: int) -> tuple[DriveView, ...]:
+        """The drives as this cycle's TPDOs showed them (the source's context)."""
+        out = []
+        for a in self.axes:
+            inp = a.input
+            if inp is None:
+                out.append(DriveView(a.axis, None, 0, None, False, a.inputs, a.probe))
+            else:
+                out.append(DriveView(a.axis, inp.state, inp.statusword,
+                                     a.scale.from_counts(inp.actual), inp.cycle == k,
+                                     a.inputs, a.probe))
+        return tuple(out)
+
+    def _sdo(self, i: int) -> SdoClient:
+        """The SDO client of drive ``i`` (the sources' transfers)."""
+        c = self._sdo_clients.get(i)
+        if c is None:
+            a, t = self.axes[i], self.tc.timeouts
+            c = self._sdo_clients[i] = SdoClient(self.transport, a.node_id, a.label, t.sdo_s,
+                                                 t.sdo_retries)
+        return c
+
+    def _run_transfers(self, program: Transfers) -> None:
+        """Run a source's SDO program (between two cycles): each transfer by SDO, the value
+        of an upload sent back, a failed one thrown in.  A 6060h write is the drive's mode:
+        in homing mode (6) statusword bit 13 is 'homing error', not a following error; a
+        60B8h write re-arms touch probe 1 (what its TPDO said before no longer counts)."""
+        value: int | None = None
+        error: CanError | None = None
+        rearmed: set[int] = set()
+        try:
+            while True:
+                try:
+                    if error is not None:
+                        e, error = error, None
+                        req = program.throw(e)
+                    else:
+                        req = program.send(value)
+                except StopIteration:
+                    break
+                value = None
+                try:
+                    sdo = self._sdo(req.axis)
+                    if isinstance(req, SdoUpload):
+                        value = (sdo.upload_int(req.index, req.sub) if req.signed
+                                 else sdo.upload_uint(req.index, req.sub))
+                    else:
+                        sdo.download(req.index, req.sub, req.data)
+                        if req.index == 0x6060 and req.sub == 0:
+                            if req.data[:1] == bytes([cia402.MODE_HM]):
+                                self._homing_mode.add(req.axis)
+                            else:
+                                self._homing_mode.discard(req.axis)
+                        elif req.index == 0x60B8:
+                            rearmed.add(req.axis)
+                except CanError as exc:
+                    error = exc
+        finally:
+            for i in rearmed:
+                self.axes[i].probe = None
+
+    def command(self, cmd: Command) -> None:
+        """A PLC's command (engage, item trigger): handed to the source with the next
+        cycle's context (dropped once the drives are stopping)."""
+        if self.phase is not Phase.STOPPING and self.phase is not Phase.STOPPED:
+            self._commands.append(cmd)
+
+    def _run_step(self, k: int, t_s: float, deadline: int,
+                  est: MasterEstimate | None) -> tuple[float, ...]:
+        """Hand the source this cycle's context, send what it returns (see the module
+        docstring, step 4)."""
         if est is None:
             est = MasterEstimate(0.0, 0.0, 0.0)
-        m = self.app.update(self, k, est)
-        out = tracker.update(m)
+        m = self.master
+        commands = tuple(self._commands)
+        self._commands.clear()
+        ctx = CycleContext(k, t_s, deadline,
+                           MasterView(est, m.belt_mm, m.ready, self._master_event),
+                           self._drive_views(k), commands, self.last_tracking_error)
+        out = self.source.step(ctx)
         self.last_output = out
-        joints = self.kinematics.joints(out.setpoint)
-        bad = self._limit_violation(joints, self.kinematics.joint_velocities(out.setpoint))
+        self.status = out.status
+        self.source_done = out.done
+        self._transfers = out.transfers
+        for e in out.events:
+            self.events.add(k, t_s, e.source, e.kind, e.detail, e.reaction, level=e.level)
+        sp = out.setpoint
+        if isinstance(sp, AxisSetpoints):
+            joints = sp.positions
+            commands_out = sp.commands
+            bad = None
+        else:
+            joints = self.kinematics.joints(sp)
+            commands_out = None
+            bad = self._limit_violation(joints, self.kinematics.joint_velocities(sp))
+        if out.stop is not None:  # (at the time it is made, like the cycle's own reactions)
+            self.quick_stop(k, (self.clock.now_ns() - self.t0) * 1e-9, out.stop.source,
+                            out.stop.kind, out.stop.detail)
         if bad is not None:
             axis, detail = bad
             self.quick_stop(k, t_s, axis.label, "limit", detail)
@@ -515,10 +645,20 @@ class Controller:
                 a.send(cia402.CW_QUICK_STOP_CMD, a.target)
             return joints
         counts = self.counts.to_counts(joints)
-        for a, c in zip(self.axes, counts):
-            a.send(cia402.CW_ENABLE, c)
-        # the tracked target (relative mode: the master plus the offset kept at engage)
-        self._master_for[k + self.master.lead] = tracker.target(m)
+        # a source that asked for the quick stop says what each drive gets in this cycle
+        # (axis setpoints); a tool setpoint: the quick stop to all
+        stopping = self.phase is Phase.STOPPING
+        for i, (a, c) in enumerate(zip(self.axes, counts)):
+            if commands_out is not None:
+                cw = commands_out[i].controlword
+            elif stopping:
+                cw = cia402.CW_QUICK_STOP_CMD
+            else:
+                cw = cia402.CW_ENABLE
+            a.send(cw, c)
+        if out.target is not None:
+            # the tracked target (relative mode: the master plus the offset kept at engage)
+            self._master_for[k + self.master.lead] = out.target
         return joints
 
     def _limit_violation(self, joints, velocities) -> tuple[AxisIO, str] | None:
@@ -687,30 +827,20 @@ class Controller:
             self.failure = EnableError(f"{source}: {detail}")
 
     def _master_outliers_lost(self, k: int, t_s: float) -> None:
-        tr = self.tracker
         cc = self.master.conf.conditioning
         n = cc.max_outliers if cc is not None else 0
-        engaged = tr is not None and tr.state in (TrackState.SYNCING, TrackState.SYNCED)
+        engaged = self.status.engaged  # (the source de-syncs, told by the context)
         self.events.add(k, t_s, self.master.label, "master_lost",
                         f"{n} encoder samples in a row off what the belt can do (last "
                         f"{self.master.outlier_mm:+.3f} mm)",
                         "de-sync on the extrapolated master (MASTER_LOST)" if engaged else
                         "conditioner restarted")
-        if tr is not None and engaged:
-            tr.disengage(TrackError.MASTER_LOST)
-        if self.phase is Phase.RUNNING:
-            self.app.master_lost(self, k)
 
     def _master_silent(self, k: int, t_s: float) -> None:
-        tr = self.tracker
-        engaged = tr is not None and tr.state in (TrackState.SYNCING, TrackState.SYNCED)
+        engaged = self.status.engaged  # (the source de-syncs, told by the context)
         reaction = "de-sync on the extrapolated master" if engaged else "waiting for samples"
         self.events.add(k, t_s, self.master.label, "master_silent",
                         f"no encoder sample for {self.master.silent} cycles", reaction)
-        if engaged:
-            tr.disengage()
-        if self.phase is Phase.RUNNING:
-            self.app.master_lost(self, k)
 
     def _supervise(self, k: int, t_s: float) -> None:
         now = self.clock.now_ns()
@@ -775,7 +905,8 @@ class Controller:
                     self.quick_stop(k, t_s, a.label, "drive_fault",
                                     f"statusword {inp.statusword:04X}h ({st.value})")
                 continue
-            if st is State.OPERATION_ENABLED and inp.statusword & cia402.SW_FOLLOWING_ERROR:
+            if st is State.OPERATION_ENABLED and inp.statusword & cia402.SW_FOLLOWING_ERROR \
+                    and i not in self._homing_mode:  # (in homing mode: 'homing error')
                 self.quick_stop(k, t_s, a.label, "following_error",
                                 f"statusword {inp.statusword:04X}h: bit 13 following error")
             elif self.phase is Phase.RUNNING and st is not State.OPERATION_ENABLED:
@@ -785,8 +916,8 @@ class Controller:
 
     # -- records -----------------------------------------------------------------------------
     def _record(self, k: int, t_s: float, setpoint: tuple[float, ...] | None) -> CycleRecord:
-        tr = self.tracker
-        out = self.last_output if self.phase is Phase.RUNNING else None
+        st = self.status
+        running = self.phase is Phase.RUNNING and self.tracking
         actual = self._actual()
         err = self._tracking_error(k, actual)
         master = self.master
@@ -795,9 +926,10 @@ class Controller:
             cycle=k, t_s=t_s, phase=self.phase.value, raw=master.raw,
             belt_mm=master.belt_mm if master.raw is not None else None,
             belt_vel=est.vel if est is not None and master.velocity_known else None,
-            state=self._track_state(tr),
-            imfs=self._imfs(tr),
-            error=int(out.error) if out is not None else 0,
+            state=int(st.track_state) if self.tracking else 0,
+            # (while stopping: the IMFS of the tracker whose setpoint went out)
+            imfs=int(st.imfs if running else st.tracker_imfs) if self.tracking else 0,
+            error=int(st.error) if running else 0,
             setpoint=setpoint,
             targets=tuple([a.target for a in self.axes]),
             actual=actual,
@@ -812,33 +944,16 @@ class Controller:
 
     def _tracking_error(self, k: int, actual: tuple[float, ...] | None = None) -> float:
         """``last_tracking_error`` of cycle ``k``: |actual - the master predicted for this
-        SYNC| [mm] while the tracker is not OFF, else 0 (``actual``: the drives' positions
-        when the caller has them)."""
+        SYNC| [mm] while the tracker whose setpoint goes out is not OFF, else 0 (``actual``:
+        the drives' positions when the caller has them)."""
         err = 0.0
         m_k = self._master_for.pop(k, None)  # the master predicted for this SYNC
-        tr = self.tracker
-        if m_k is not None and tr is not None and tr.state is not TrackState.OFF:
+        if m_k is not None and self.tracking and \
+                self.status.tracker_state is not TrackState.OFF:
             err = self._translation_error(actual if actual is not None else self._actual(),
                                           m_k)
         self.last_tracking_error = err
         return err
-
-    def _track_state(self, tr: Tracker | None) -> int:
-        """Tracker state of the cycle record: the application's if it has one (the demo's
-        robot group; the controller's tracker passes its setpoint through), else the
-        tracker's."""
-        st = self.app.status().track_state
-        if st is not None and self.phase is not Phase.ENABLING and self.phase is not Phase.IDLE:
-            return int(st)  # (also while stopping: the pass-through tracker stays SYNCED)
-        return int(tr.state) if tr is not None else 0
-
-    def _imfs(self, tr: Tracker | None) -> int:
-        """IMFS of the cycle record: the application's (the demo's robot group) if it has
-        one, else the tracker's."""
-        imfs = self.app.status().imfs
-        if imfs is not None and self.phase is Phase.RUNNING:
-            return int(imfs)
-        return int(tr.imfs) if tr is not None else 0
 
     def _translation_error(self, actual: tuple[float, ...], master: MotionState) -> float:
         """|actual - master| over the translation axes x, y, z [mm]."""
@@ -852,7 +967,7 @@ class Controller:
     # -- running -----------------------------------------------------------------------------
     def run(self, max_cycles: int | None = None,
             stop: Callable[[], bool] | None = None, realtime_gc: bool | None = None) -> None:
-        """Step until the application is done, the drives stopped, ``max_cycles``, or
+        """Step until the source is done, the drives stopped, ``max_cycles``, or
         ``stop()``; then leave the drives disabled.  Raises the failure of the enable."""
         rt = self.clock.realtime if realtime_gc is None else realtime_gc
         if rt:
@@ -875,7 +990,7 @@ class Controller:
                                             _where(exc)):
                         break
                     continue
-                if self.phase is Phase.RUNNING and self.app.done(self, self.k - 1):
+                if self.phase is Phase.RUNNING and self.source_done:
                     break
                 if self.phase is Phase.STOPPED:
                     break
@@ -913,6 +1028,11 @@ class Controller:
             self.k = k + 1
             if self.on_cycle is not None:
                 self.on_cycle(self, rec)
+
+
+#: the master input's events (masterio) as the source's context says them
+_MASTER_EVENTS = {None: MasterEvent.NONE, "silent": MasterEvent.SILENT, "lost": MasterEvent.LOST,
+                  "outlier": MasterEvent.OUTLIER, "back": MasterEvent.BACK}
 
 
 def _where(exc: BaseException) -> str:

@@ -3,10 +3,11 @@
 :func:`attach_plc_node` puts a :class:`~controller.canopen.slave.plc.PlcNode` on the
 controller's transport and chains it onto ``Controller.on_cycle``: each cycle it gets the
 cycle's status (state and IMFS of the cycle record, the tracker's error code, the cycle's
-tracking error, the estimated belt velocity, the application's typed
-:meth:`~.app.Application.status`: items, missed, dropped) and the SYNC the controller just
-sent.  Its commands go to :meth:`~.app.Application.engage` / ``.trigger`` or, where the
-application does not take them, to the controller's tracker.
+tracking error, the estimated belt velocity, the setpoint source's typed
+:class:`~.source.SourceStatus`: items, missed, dropped) and the SYNC the controller just
+sent.  Its commands (engage, item trigger) are queued with :meth:`Controller.command
+<.cycle.Controller.command>` as :class:`~.source.Engage` / :class:`~.source.Trigger` values:
+the source gets them with the next cycle's context.
 """
 
 from __future__ import annotations
@@ -19,50 +20,39 @@ from ..config.concise import effective_pdos
 from ..config.plc import PlcConfig
 from ..slave.plc import EDS, PlcNode, PlcStatus, reserved_cob_ids
 from .events import EventKind
+from .source import Engage, TrackTypes, Trigger
 
 if TYPE_CHECKING:
-    from .app import Application
     from .cycle import Controller, CycleRecord
 
 
 class ControllerHost:
-    """:class:`~controller.canopen.slave.plc.PlcHost` for a :class:`Controller` and its
-    application (:class:`~.app.Application`: typed status, engage, trigger)."""
+    """:class:`~controller.canopen.slave.plc.PlcHost` for a :class:`Controller`: the
+    source's typed status, its commands queued for the source."""
 
-    def __init__(self, ctl: Controller, app: Application | None = None) -> None:
+    def __init__(self, ctl: Controller) -> None:
         self.ctl = ctl
-        self.app: Application = app if app is not None else ctl.app
 
     def tracking(self) -> bool:
-        return self.ctl.tracker is not None
+        return self.ctl.tracking
 
     def track_state(self) -> TrackState:
-        state = self.app.status().track_state  # (the demo's robot group)
-        if state is not None:
-            return state
-        tr = self.ctl.tracker
-        return tr.state if tr is not None else TrackState.OFF
+        return self.ctl.status.track_state  # (the demo's: its robot group's)
 
     def engage(self, mode: Mode) -> None:
-        if self.app.engage(self.ctl, mode):
-            return
-        tr = self.ctl.tracker
-        if tr is None:
-            return
-        if mode == Mode.OFF:
-            tr.disengage()
-        else:
-            tr.engage(mode)
+        self.ctl.command(Engage(mode))
 
     def trigger(self, t_ns: int, item_type: int) -> None:
-        self.app.trigger(t_ns, item_type)  # (False: no item sensor; the node counts them)
+        # (a source without item sensor ignores it; the node counts its triggers)
+        self.ctl.command(Trigger(t_ns, item_type))
 
     def track_types(self) -> frozenset[int] | None:
         tc = self.ctl.cfg.tracking
         return tc.track_types if tc is not None else None
 
     def set_track_types(self, types: frozenset[int] | None) -> None:
-        self.app.track_types(types)  # (False: no items to classify; 2015h keeps the value)
+        # (a source without items ignores it; 2015h keeps the value)
+        self.ctl.command(TrackTypes(types))
 
     def _t(self) -> tuple[int, float]:
         ctl = self.ctl
@@ -84,26 +74,25 @@ class ControllerHost:
         self.ctl.nmt_state = state
 
     def status(self, rec: CycleRecord, node: PlcNode) -> PlcStatus:
-        app = self.app.status()
-        tr = self.ctl.tracker
+        app = self.ctl.status
         return PlcStatus(
             state=TrackState(rec.state), imfs=rec.imfs,
-            error=int(tr.error) if tr is not None else rec.error,
+            error=int(app.error) if self.ctl.tracking else rec.error,
             items=app.items_detected if app.items_detected is not None else node.triggers,
             missed=app.items_missed, tracking_error_mm=rec.tracking_error,
             belt_vel_mm_s=rec.belt_vel if rec.belt_vel is not None else 0.0,
             triggers_dropped=app.triggers_dropped, items_ignored=app.items_ignored)
 
 
-def attach_plc_node(ctl: Controller, app: Application | None = None,
-                    config: PlcConfig | None = None, eds: str = str(EDS)) -> PlcNode:
+def attach_plc_node(ctl: Controller, config: PlcConfig | None = None,
+                    eds: str = str(EDS)) -> PlcNode:
     """Make the running controller ``ctl`` the node of ``eds`` (node-ID ``master.node_id``)
     for a PLC; ``config``: the ``.plc`` section (default: the bus configuration's, else no
     commander: every motion command refused)."""
     cfg = ctl.cfg
     if config is None:
         config = cfg.plc or PlcConfig()
-    host = ControllerHost(ctl, app)
+    host = ControllerHost(ctl)
     m = cfg.master
     slaves = {s.node_id: cfg.label(name) for name, s in cfg.slaves.items()}
     configured = {p.cob_id: f"{p.kind.upper()}{p.number} of {cfg.label(name)}"

@@ -38,7 +38,8 @@ Item types (docs/spec/conveyor-extensions.md#3): each trigger edge gives its ite
 in 2014h at that moment (RPDO2 carries 2014h and 2004h: the type applies to the edge of the
 same frame, whatever the order of the mapping); 2015h:1-8 is the set of tracked types as
 256 bits (bit b of sub s: type 32 (s - 1) + b), loaded from ``.tracking.items.track_types``
-at the start; a write changes the application's set at once (all bits set: every type).
+at the start; a write changes the setpoint source's set in the next cycle (all bits set:
+every type).
 
 Trigger edges (2004h bit 0 rising) are bounded: at most ``trigger_rate_max`` per second
 (over the last second); more are dropped, counted in 2013h and reported.  A full trigger
