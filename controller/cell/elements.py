@@ -17,7 +17,7 @@ from typing import Any, overload
 from ..conveyor import (FRAME_LIMITS, MOTION_LIMITS, SOFTMC_LIMIT_NAMES, Location, Window,
                         frame_limits)
 from ..limits import CartesianLimits, Limits
-from ..conveyor.frame import LINEAR, ROTARY, ROTARY_DECOUPLED
+from ..conveyor.frame import LINEAR, ROTARY, ROTARY_DECOUPLED, FrameType
 from ..conveyor.replay import read_encoder_log
 from ..errors import ConfigError, ParameterError
 from ..yamlmarks import Section, check_number
@@ -33,7 +33,7 @@ _TYPES = {"linear": LINEAR, "rotary": ROTARY, "rotary_decoupled": ROTARY_DECOUPL
 @dataclass(frozen=True)
 class FrameSpec:
     name: str
-    type: int
+    type: FrameType
     window: Window
     limits: CartesianLimits
     origin: Location = Location()

@@ -32,7 +32,7 @@ from .cell import ConveyorCell
 from .errors import (ITEM_MISSED_CODE, ArcGeometryError, FrameBusyError, NoFrameError,
                      TooManyFramesError, TriggerBufferFull)
 from .frame import (FRAME_LIMITS, LINEAR, ROTARY, ROTARY_DECOUPLED, SOFTMC_LIMIT_NAMES,
-                    MovingFrame, frame_limits)
+                    FrameType, MovingFrame, frame_limits)
 from .frames import ArcGeometry, FramePoint, LinearGeometry, RotaryGeometry, arc_from_points
 from .kinematics import Kinematics, KinematicsError, RobotType
 from .location import Location, compound, oplus, ominus, q_axis_angle
@@ -46,7 +46,7 @@ from .window import Window, WindowPosition
 
 __all__ = [
     "ArcGeometry", "ArcGeometryError", "ArcPath", "CatchPrediction", "ConveyorCell",
-    "ConveyorTracker", "EncoderSource", "Event", "EventKind", "FRAME_LIMITS", "FrameBusyError", "FrameLink",
+    "ConveyorTracker", "EncoderSource", "Event", "EventKind", "FRAME_LIMITS", "FrameBusyError", "FrameLink", "FrameType",
     "FramePoint", "FrameSource", "ITEM_MISSED_CODE", "ItemRecord", "ItemStatus", "KEEP", "MOTION_LIMITS",
     "Kinematics", "KinematicsError", "RobotType",
     "LINEAR", "LinearGeometry", "LinkState", "Location", "Motion",

@@ -5,7 +5,7 @@ master sources, a geometry, a window and limits.  It is updated once per sample
 (:meth:`MovingFrame.update` reads its sources) and linked to robots by
 ``<robot>.MasterFrame = <MF>`` (:class:`controller.conveyor.robot.RobotGroup`).
 
-Types (``<MF>.type``, default 0):
+Types (``<MF>.type``, :class:`FrameType`, default 0):
 
 - 0 linear: NOF sources, each along a direction (:mod:`.frames.linear`);
 - 1 rotary: the arc through UpStream[1], ArcPoint, DownStream[1] (:mod:`.frames.rotary`);
@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import math
 import numbers
+from enum import IntEnum
 from typing import TYPE_CHECKING, Sequence
 
 from ..errors import ParameterError, StateError
@@ -50,7 +51,19 @@ from .window import Window, WindowPosition
 if TYPE_CHECKING:
     from .robot import RobotGroup
 
-LINEAR, ROTARY, ROTARY_DECOUPLED, GROUP = 0, 1, 2, 3
+
+class FrameType(IntEnum):
+    """``<MF>.type``, softMC's numbers (see the module docstring)."""
+
+    LINEAR = 0
+    ROTARY = 1
+    ROTARY_DECOUPLED = 2
+    GROUP = 3
+
+
+#: the types by their softMC names, for code that reads like a softMC program
+LINEAR, ROTARY, ROTARY_DECOUPLED, GROUP = (FrameType.LINEAR, FrameType.ROTARY,
+                                           FrameType.ROTARY_DECOUPLED, FrameType.GROUP)
 TYPE_NAMES = {LINEAR: "linear", ROTARY: "rotary", ROTARY_DECOUPLED: "rotary decoupled",
               GROUP: "group (robot TCP)"}
 
@@ -162,7 +175,7 @@ class MovingFrame:
         if self.window.nof != self.nof:
             raise ParameterError(f"frame {name!r}: the window has {self.window.nof} DOF(s), "
                                  f"the frame NOF = {self.nof}")
-        self._type = LINEAR
+        self._type: FrameType = LINEAR
         #: type 3: the robot TCP source (set by :meth:`group`)
         self.group_source: GroupSource | None = None
         self.group_axis: Vec3 = (0.0, 0.0, 1.0)
@@ -199,7 +212,7 @@ class MovingFrame:
 
     # -- type -------------------------------------------------------------------------------
     @property
-    def type(self) -> int:
+    def type(self) -> FrameType:
         return self._type
 
     @type.setter
@@ -216,7 +229,7 @@ class MovingFrame:
         if value in (ROTARY, ROTARY_DECOUPLED) and self.nof != 1:
             raise ParameterError(f"<{self.name}>.type (={value}) rotary needs NOF = 1 "
                                  f"(this frame has NOF = {self.nof})")
-        self._type = int(value)
+        self._type = FrameType(int(value))
 
     @property
     def type_name(self) -> str:

@@ -79,7 +79,7 @@ from ..cell.elements import (FrameSpec, MasterSpec, ProgramSpec, RobotSpec, read
 from ..cell.reading import MAX_SAMPLES, SampledRun, tracker_params
 from ..conveyor import (CatchPrediction, ConveyorCell, EncoderSource, Event, EventKind,
                         Location, MovingFrame, RobotGroup, SimulatedAxis, TriggerBufferFull)
-from ..conveyor.frame import LINEAR, TYPE_NAMES
+from ..conveyor.frame import LINEAR, TYPE_NAMES, FrameType
 from ..conveyor.replay import (TriggerEvent, check_trigger_log, read_trigger_log,
                                write_encoder_log, write_trigger_log)
 from ..conveyor.sources import quantise_counts
@@ -671,5 +671,5 @@ def write_logs(result: ConveyorResult, prefix: str | Path) -> tuple[Path, Path |
     return trig, enc
 
 
-def type_name(t: int) -> str:
+def type_name(t: FrameType) -> str:
     return TYPE_NAMES[t]
