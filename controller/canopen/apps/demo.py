@@ -49,7 +49,7 @@ import random
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
-from enum import Enum
+from enum import Enum, StrEnum
 from typing import TYPE_CHECKING
 
 from ...conveyor import (
@@ -93,6 +93,18 @@ class Step(Enum):
     PLACE = "place"
 
 
+class Outcome(StrEnum):
+    """What became of an item (its value is what the summary and telemetry print)."""
+
+    PENDING = "pending"
+    PLACED = "placed"
+    MISSED = "missed"
+    #: its type is not tracked (2015h / ``.tracking.items.track_types``) or the robot refused it
+    IGNORED = "ignored"
+    #: pushed out of a full trigger buffer
+    DROPPED = "dropped"
+
+
 @dataclass
 class Item:
     """One item: seen by the photo-eye at controller time ``t_edge_ns``."""
@@ -107,7 +119,7 @@ class Item:
     synced_cycle: int | None = None
     picked_cycle: int | None = None
     placed_cycle: int | None = None
-    outcome: str = "pending"  # pending, placed, missed, ignored, dropped (buffer full)
+    outcome: Outcome = Outcome.PENDING
     reason: str = ""
     max_error_mm: float = 0.0
     u_pick: float | None = None
@@ -315,14 +327,14 @@ class PickPlace:
             raise StateError("the conveyor demo is not started (start() reads .tracking)")
         return self._tc
 
-    def _finish_item(self, item: Item, outcome: str, reason: str = "") -> None:
-        if item.outcome != "pending":
+    def _finish_item(self, item: Item, outcome: Outcome, reason: str = "") -> None:
+        if item.outcome is not Outcome.PENDING:
             return
         item.outcome = outcome
         item.reason = reason
-        if outcome == "placed":
+        if outcome is Outcome.PLACED:
             self.placed += 1
-        elif outcome == "ignored":
+        elif outcome is Outcome.IGNORED:
             self.ignored += 1
         else:
             self.missed += 1
@@ -397,12 +409,12 @@ class PickPlace:
             self._by_entry[e.id] = item
             types = r.tracked_types(f)
             if types is not None and item.item_type not in types:
-                self._finish_item(item, "ignored", f"type {item.item_type} not tracked")
+                self._finish_item(item, Outcome.IGNORED, f"type {item.item_type} not tracked")
         step = self.stage
         if step == Step.WAIT:
             entry = r.buffer.current(f.name, r.tracked_types(f))
             while entry is not None and (entry.id not in self._by_entry
-                                         or self._by_entry[entry.id].outcome != "pending"):
+                                         or self._by_entry[entry.id].outcome is not Outcome.PENDING):
                 r.nextitem(f)  # (an item de-synced by STOP stays in the buffer: drop it)
                 entry = r.buffer.current(f.name, r.tracked_types(f))
             if entry is not None and not r.links and master_ready:
@@ -437,7 +449,7 @@ class PickPlace:
                 if item.placed_cycle is None:
                     item.placed_cycle = cycle
                 if (cycle - item.placed_cycle) * T >= self.demo.place_dwell_s:
-                    self._finish_item(item, "placed")
+                    self._finish_item(item, Outcome.PLACED)
                     self.stage = Step.WAIT
         tracker = self.tracker
         if tracker is not None and tracker.state is TrackState.OFF and master_ready:
@@ -448,17 +460,17 @@ class PickPlace:
             self.imfs_log.append(imfs)
         for ev in out.events:
             ev_item = self._by_entry.get(ev.item) if ev.item is not None else None
-            if ev_item is not None and ev.kind == EventKind.ENGAGED and ev_item.outcome == "pending":
+            if ev_item is not None and ev.kind == EventKind.ENGAGED and ev_item.outcome is Outcome.PENDING:
                 ev_item.engage_cycle = cycle
                 ev_item.synced_cycle = None
             elif ev_item is not None and ev.kind == EventKind.SYNCHRONIZED \
                     and ev_item.synced_cycle is None:
                 ev_item.synced_cycle = cycle
             if ev.kind == EventKind.ITEM_IGNORED and ev_item is not None:
-                self._finish_item(ev_item, "ignored", ev.message)
+                self._finish_item(ev_item, Outcome.IGNORED, ev.message)
             if ev.kind == EventKind.ITEM_MISSED and ev.item in self._by_entry:
                 item = self._by_entry[ev.item]
-                self._finish_item(item, "missed", f"left the window ({ev.code})")
+                self._finish_item(item, Outcome.MISSED, f"left the window ({ev.code})")
                 if self.stage in (Step.APPROACH, Step.FOLLOW):
                     self.stage = Step.WAIT
                 self._events.append(SourceEvent(
@@ -492,7 +504,7 @@ class PickPlace:
                     r.buffer.remove(e)
                     victim = self._by_entry.get(e.id, item)
                     break
-        self._finish_item(victim, "dropped", f"trigger buffer full ({r.buffer.capacity} "
+        self._finish_item(victim, Outcome.DROPPED, f"trigger buffer full ({r.buffer.capacity} "
                           f"entries, {self.trigger_overflow.value})")
         self.triggers_dropped += 1
         self._drops_unreported += 1
@@ -513,7 +525,7 @@ class PickPlace:
         approached or followed is missed); 3/5 are the program's to give (ignored)."""
         if mode == Mode.OFF and self.robot is not None:
             if self.current is not None and self.stage in (Step.APPROACH, Step.FOLLOW):
-                self._finish_item(self.current, "missed", "disengaged by the PLC")
+                self._finish_item(self.current, Outcome.MISSED, "disengaged by the PLC")
                 self.stage = Step.WAIT
             self.robot.stop()
 
@@ -525,9 +537,9 @@ class PickPlace:
             self.robot.track_types(self.frame, types)
         if types is not None:
             for item in list(self._by_entry.values()):
-                if item.outcome == "pending" and item is not self.current \
+                if item.outcome is Outcome.PENDING and item is not self.current \
                         and item.item_type not in types:
-                    self._finish_item(item, "ignored", f"type {item.item_type} not tracked")
+                    self._finish_item(item, Outcome.IGNORED, f"type {item.item_type} not tracked")
 
     def status(self) -> SourceStatus:
         """The robot group's tracking, the pass-through tracker's, the photo-eye's count, the
@@ -543,7 +555,7 @@ class PickPlace:
 
     def _master_lost(self) -> None:
         if self.current is not None and self.stage in (Step.APPROACH, Step.FOLLOW):
-            self._finish_item(self.current, "missed", "encoder silent")
+            self._finish_item(self.current, Outcome.MISSED, "encoder silent")
             self._cell()[0].stop()
             self.stage = Step.WAIT
 

@@ -18,6 +18,7 @@ import numpy as np
 
 from ...tracking import TrackState
 from ..io.files import json_safe
+from .demo import Outcome
 
 if TYPE_CHECKING:
     from ..master.cycle import Controller, CycleRecord
@@ -91,12 +92,12 @@ def summary_table(ctl: Controller, items: Sequence[Item], wall_s: float,
     if counts is not None:
         placed, missed, seen = counts
         seen = max(seen, len(items))
-        ignored = sum(1 for i in items if i.outcome == "ignored") if ignored_count is None \
+        ignored = sum(1 for i in items if i.outcome is Outcome.IGNORED) if ignored_count is None \
             else ignored_count
     else:
-        placed = sum(1 for i in items if i.outcome == "placed")
-        missed = sum(1 for i in items if i.outcome == "missed")
-        ignored = sum(1 for i in items if i.outcome == "ignored")
+        placed = sum(1 for i in items if i.outcome is Outcome.PLACED)
+        missed = sum(1 for i in items if i.outcome is Outcome.MISSED)
+        ignored = sum(1 for i in items if i.outcome is Outcome.IGNORED)
         seen = len(items)
     sim_s = ctl.k * T
     lines.append("")
@@ -180,7 +181,7 @@ class Telemetry:
             return
         ctl = self.ctl
         for it in items:
-            if it.outcome == "pending":
+            if it.outcome is Outcome.PENDING:
                 self.item(it)
         d = {"type": "end", "end": end, "error": error, "cycles": ctl.k,
              "t_s": ctl.k * ctl.cfg.period_s, "phase": ctl.phase.value,
