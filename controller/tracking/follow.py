@@ -45,6 +45,19 @@ def _norm(x: Vec) -> float:
     return math.sqrt(s)
 
 
+def rest_target_solver(n: int) -> tuple[Any, Any, Any]:
+    """A Ruckig solver, its input and its trajectory for ``n`` DOFs, synchronised in time
+    where necessary, with the target at rest at 0 (the planners work in the gap to the
+    master). ruckig is imported here, on first use: the softMC planner runs without it."""
+    from ruckig import InputParameter, Ruckig, Synchronization, Trajectory
+    inp = InputParameter(n)
+    inp.synchronization = Synchronization.TimeIfNecessary
+    zero = [0.0] * n
+    inp.target_position = zero
+    inp.target_velocity = zero
+    inp.target_acceleration = zero
+    return Ruckig(n), inp, Trajectory(n)
+
 class SyncFollower:
     """Follow one channel's master within its sync ``limits`` (see the module docstring)."""
 
@@ -85,16 +98,8 @@ class SyncFollower:
                    J2 * T2 * T2 * T2)
 
     def _solver(self, n: int) -> None:
-        from ruckig import InputParameter, Ruckig, Synchronization, Trajectory
         self.n = n
-        self._rk = Ruckig(n)
-        self._inp = inp = InputParameter(n)
-        self._traj = Trajectory(n)
-        inp.synchronization = Synchronization.TimeIfNecessary
-        zero = [0.0] * n
-        inp.target_position = zero
-        inp.target_velocity = zero
-        inp.target_acceleration = zero
+        self._rk, self._inp, self._traj = rest_target_solver(n)
 
     def copyable(self, p: Vec, v: Vec, a: Vec, mp: Vec, mv: Vec, ma: Vec,
                  p2: Vec | None = None, p3: Vec | None = None,

@@ -153,9 +153,10 @@ from __future__ import annotations
 
 import math
 
-from ruckig import ControlInterface, InputParameter, Ruckig, Synchronization, Trajectory
+from ruckig import ControlInterface, InputParameter, Ruckig, Trajectory
 
 from ..limits import Limits
+from .follow import rest_target_solver
 from .vec import Vec
 
 #: rows (u1, u2, u3) of a rotation R (q = R e); None stands for the world axes
@@ -372,15 +373,7 @@ class OptimalPlanner:
 
     # -- Ruckig objects (not picklable: rebuilt on restore) ---------------------------
     def _solver(self) -> None:
-        n = self.n
-        self._rk = Ruckig(n)
-        self._inp = inp = InputParameter(n)
-        self._traj = Trajectory(n)
-        inp.synchronization = Synchronization.TimeIfNecessary
-        zero = [0.0] * n
-        inp.target_position = zero
-        inp.target_velocity = zero
-        inp.target_acceleration = zero
+        self._rk, self._inp, self._traj = rest_target_solver(self.n)
 
     def __getstate__(self):
         d = self.__dict__.copy()
