@@ -39,8 +39,8 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from .vendor import (VENDOR_ENV, VendorError, cache_dir, content_key, find_archives, run_logged,
-                     unpack, vendor_dir)
+from .vendor import (VENDOR_ENV, VendorError, build_slot, find_archives, run_logged, unpack,
+                     vendor_dir)
 
 ARCHIVES = ("Reference-FMUs", "FMUComplianceChecker", "fmi-library", "zlib", "sundials")
 TOOLS = ("gcc", "cmake", "make")
@@ -171,11 +171,7 @@ def build_tools(directory: Path | None = None, cache: Path | None = None) -> Fmi
     if not ok:
         raise VendorError(why)
     found = archives(d)
-    paths = [p for p in found.values() if p is not None]
-    versions = tuple(p.name.removesuffix(".tar.gz") for p in paths)
-    base = cache if cache is not None else cache_dir()
-    base.mkdir(parents=True, exist_ok=True)
-    root = base / f"fmi-{content_key(paths)}"
+    base, root, versions = build_slot(found, "fmi", cache)
     with (base / ".lock-fmi").open("w") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)  # one build at a time (parallel test sessions)
         if (root / "done").is_file():

@@ -170,6 +170,17 @@ def unpack(archive: Path, into: Path, strip_top: bool = False) -> None:
         tf.extractall(into, members=members, filter="tar")
 
 
+def build_slot(found: dict[str, Path | None], prefix: str,
+               cache: Path | None = None) -> tuple[Path, Path, tuple[str, ...]]:
+    """Where the build of the ``found`` archives goes: (the cache, ``<prefix>-<content key>``
+    in it, the archives' names without ``.tar.gz``); the cache is made if missing."""
+    paths = [p for p in found.values() if p is not None]
+    versions = tuple(p.name.removesuffix(".tar.gz") for p in paths)
+    base = cache if cache is not None else cache_dir()
+    base.mkdir(parents=True, exist_ok=True)
+    return base, base / f"{prefix}-{content_key(paths)}", versions
+
+
 def build_stack(directory: Path | None = None, cache: Path | None = None) -> CanopenStack:
     """Build canopend, cocomm and demoLinuxDevice (or reuse the cached build)."""
     d = directory if directory is not None else vendor_dir()
@@ -177,11 +188,7 @@ def build_stack(directory: Path | None = None, cache: Path | None = None) -> Can
     if not ok:
         raise VendorError(why)
     found = archives(d)
-    paths = [p for p in found.values() if p is not None]
-    versions = tuple(p.name.removesuffix(".tar.gz") for p in paths)
-    base = cache if cache is not None else cache_dir()
-    base.mkdir(parents=True, exist_ok=True)
-    root = base / f"canopen-{content_key(paths)}"
+    base, root, versions = build_slot(found, "canopen", cache)
     stack = stack_at(root, versions)
     with (base / ".lock").open("w") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)  # one build at a time (parallel test sessions)
