@@ -48,6 +48,26 @@ def booted_follow(tmp_path, stepped_controller):
     return _make
 
 
+@pytest.fixture(scope="module")
+def canopen_stack(pytestconfig):
+    """The independent CANopen stack (CANopenNode's canopend, cocomm, the demo device) built
+    from the vendor sources: skipped where they are absent, a failure in CI."""
+    import os
+
+    from controller.testing.vendor import VendorError, build_stack, stack_available
+
+    ok, why = stack_available()
+    required = pytestconfig.getoption("--vcan-required") or os.environ.get("CI") == "true"
+    if not ok:
+        if required:
+            pytest.fail(why, pytrace=False)
+        pytest.skip(why)
+    try:
+        return build_stack()
+    except VendorError as exc:
+        pytest.fail(str(exc), pytrace=False)
+
+
 def _conveyor_example(name: str):
     from pathlib import Path
 

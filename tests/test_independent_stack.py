@@ -341,22 +341,6 @@ class Session:
 
 
 @pytest.fixture(scope="module")
-def canopen_stack(pytestconfig):
-    from controller.testing.vendor import VendorError, build_stack, stack_available
-
-    ok, why = stack_available()
-    required = pytestconfig.getoption("--vcan-required") or os.environ.get("CI") == "true"
-    if not ok:
-        if required:
-            pytest.fail(why, pytrace=False)
-        pytest.skip(why)
-    try:
-        return build_stack()
-    except VendorError as exc:
-        pytest.fail(str(exc), pytrace=False)
-
-
-@pytest.fixture(scope="module")
 def session(canopen_stack, vcan_runner, tshark_path, tmp_path_factory) -> Session:
     scratch = tmp_path_factory.mktemp("independent-stack")
     demo = scratch / "demo"

@@ -237,22 +237,6 @@ def _tail(path: Path) -> str:
 
 
 @pytest.fixture(scope="module")
-def canopen_stack(pytestconfig):
-    from controller.testing.vendor import VendorError, build_stack, stack_available
-
-    ok, why = stack_available()
-    required = pytestconfig.getoption("--vcan-required") or os.environ.get("CI") == "true"
-    if not ok:
-        if required:
-            pytest.fail(why, pytrace=False)
-        pytest.skip(why)
-    try:
-        return build_stack()
-    except VendorError as exc:
-        pytest.fail(str(exc), pytrace=False)
-
-
-@pytest.fixture(scope="module")
 def session(canopen_stack, vcan_runner, tmp_path_factory) -> dict:
     scratch = tmp_path_factory.mktemp("vcan-plc")
     out = scratch / "plc"
