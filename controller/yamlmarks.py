@@ -530,6 +530,12 @@ class Section:
             raise self.error(key, f"must be a string, got {describe(value)}")
         return value
 
+    def file_path(self, key: Any) -> Path:
+        """The string at ``key`` as a file's path, a relative one resolved against
+        :attr:`base_dir` (the directory of the file being read)."""
+        path = Path(self.string(key))
+        return path if path.is_absolute() else self.base_dir / path
+
     def xyz(self, key: Any, default: Any = _MISSING, *, unit: builtins.str = "") -> Any:
         """``[x, y, z]`` [``unit``]; a position (mm) within :data:`MAX_POSITION`."""
         value = self.given(key, default)

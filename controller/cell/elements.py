@@ -196,9 +196,7 @@ def read_master(node: Section) -> MasterSpec:
         if enc is None:
             raise node.error("log", "an encoder log needs the encoder section "
                                     "(counts_per_unit, modulus)")
-        path = Path(node.string("log"))
-        if not path.is_absolute():
-            path = node.base_dir / path
+        path = node.file_path("log")
         try:
             logs = read_encoder_log(path)
         except OSError as exc:

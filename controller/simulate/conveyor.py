@@ -156,10 +156,7 @@ def _items(node, duration_s: float, n_samples: int, frame: FrameSpec,
     if node.has("types"):
         raise node.error("types", "goes with trigger_times (a CSV has a type column, a log "
                                   "its own)")
-    name = node.string(kinds[0])
-    path = Path(name)
-    if not path.is_absolute():
-        path = node.base_dir / path
+    path = node.file_path(kinds[0])
     if kinds[0] == "log":
         try:
             events = read_trigger_log(path)

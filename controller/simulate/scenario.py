@@ -196,11 +196,8 @@ _CSV_ALIASES = {"t": "time_s", "time": "time_s", "x_mm": "x", "y_mm": "y", "z_mm
 
 def _csv_master(node: Section) -> CsvMaster:
     node.check_keys(("csv", "window"))
-    name = node.string("csv")
+    path = node.file_path("csv")
     window = node.number("window", 16, lo=3, hi=10000, integer=True)
-    path = Path(name)
-    if not path.is_absolute():
-        path = node.base_dir / path
     try:
         text = read_text(path)
     except OSError as exc:
