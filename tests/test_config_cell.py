@@ -11,10 +11,8 @@ from pathlib import Path
 
 import pytest
 
-from controller.canopen.apps.follow import ConveyorFollow
 from controller.canopen.config import load_config, parse_config
 from controller.canopen.config.cell import robot_kinematics
-from controller.canopen.master.cycle import Controller
 from controller.conveyor import Kinematics
 from controller.errors import ConfigError, ParameterError
 from controller.simulate.scenario import load_scenario
@@ -148,14 +146,6 @@ def test_a_bad_cell_names_file_line_and_key(tmp_path, name):
     assert err.file == str(path) and err.key == key, str(err)
     assert re.search(message, err.bare_message), str(err)
     assert err.line in _lines(text, fragment), str(err)
-
-
-def test_the_bus_controller_refuses_a_cell_clearly():
-    """Until the cell runs on the bus: a clear error, not one kinematics over both robots."""
-    cfg = load_config(BUS)
-    with pytest.raises(ConfigError, match="cell .* not run by the bus controller") as info:
-        Controller(cfg, None, ConveyorFollow())  # type: ignore[arg-type]
-    assert info.value.key == ".tracking.cell" and info.value.file == cfg.file
 
 
 def test_a_demo_section_beside_a_cell_is_refused_at_its_key(tmp_path):

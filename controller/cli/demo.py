@@ -12,6 +12,11 @@ Long runs: memory stays bounded (the last 1000 items and events, a decimated plo
 ``--file-size``/``--file-time``/``--keep`` rotate bus.log and telemetry.jsonl (python-can's
 ``can.logger`` naming).  SIGTERM and Ctrl-C end the demo like its duration: the drives stop,
 every file is complete, exit 0 (3 if a supervision reaction stopped the drives).
+
+A bus.yml with a ``.tracking.cell`` runs that cell instead (:mod:`controller.cli.cell`): every
+encoder and every robot's drives simulated, the cell's sensors and MasterFrame changes as its
+program; the summary per robot, frame and item, ``telemetry.jsonl`` with each robot's items,
+``demo.png`` with every frame and robot.
 """
 
 from __future__ import annotations
@@ -61,8 +66,9 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog=prog, description=__doc__.split("\n\n")[0],
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("config", nargs="?", default=str(DEFAULT_CONFIG),
-                   help="bus.yml with .tracking, .simulation and .demo sections "
-                        f"(default: {DEFAULT_CONFIG})")
+                   help="bus.yml with .tracking, .simulation and .demo sections, or with a "
+                        ".tracking.cell (several encoders, frames, robots: its sensors and "
+                        f"MasterFrame changes are the program) (default: {DEFAULT_CONFIG})")
     p.add_argument("-o", "--output", default="cantrack-demo",
                    help="output directory (default: ./cantrack-demo)")
     p.add_argument("--realtime", action="store_true",
@@ -89,6 +95,9 @@ PLOT_POINTS = 20_000
 def main(argv: list[str] | None = None, prog: str = "cantrack demo") -> int:
     args = build_parser(prog).parse_args(argv)
     cfg = load_config(args.config)
+    if cfg.tracking is not None and cfg.tracking.cell is not None:
+        from .cell import run_cell_demo
+        return run_cell_demo(args, cfg)
     if cfg.demo is None or cfg.tracking is None:
         raise ConfigError("the demo needs .tracking and .demo sections", file=cfg.file)
     demo = cfg.demo

@@ -2,7 +2,11 @@
 
 Boots the bus (NMT reset, identity, SDO configuration, NMT start), enables the drives in
 CSP and runs the cycle until ``--duration`` or Ctrl-C; the application follows a point of
-the belt (``--engage-at``/``--disengage-at``, absolute or relative).  Bus flags as in
+the belt (``--engage-at``/``--disengage-at``, absolute or relative), or, with a
+``.tracking.cell``, runs the cell (:mod:`controller.canopen.apps.cell`: every robot on its
+own drives, its MasterFrame changes or program, the cell's sensors; until ``--duration`` or,
+without it, until nothing is scheduled and every robot stands), with the summary per robot,
+frame and item, and each robot's items in the telemetry.  Bus flags as in
 python-can's tools (-i/-c/-b, --can-config, CAN_* environment variables).
 
 The controller's own heartbeat (``master.heartbeat_producer``) runs from the start of the
@@ -38,6 +42,7 @@ import time
 from collections import deque
 from collections.abc import Callable
 
+from ..canopen.apps.cell import CellSource, format_cell_table, frame_counts
 from ..canopen.apps.report import Telemetry, status_line, summary_table, timing_summary
 from ..canopen.config import load_config
 from ..canopen.config.busload import check_bus_load
@@ -281,9 +286,26 @@ def main(argv: list[str] | None = None, prog: str = "cantrack run") -> int:
     period = cfg.period_s
     def cyc(s: float | None) -> int | None:
         return None if s is None else round(s / period)
-    app = ConveyorFollow(cyc(args.engage_at), cyc(args.disengage_at), args.offset,
-                         Mode.ABSOLUTE if args.mode == "absolute" else Mode.RELATIVE,
-                         end_cycle=cyc(args.duration))
+    telemetry: list[Telemetry] = []
+    cell = cfg.tracking.cell if cfg.tracking is not None else None
+    app: ConveyorFollow | CellSource
+    if cell is not None:
+        # a cell: its robots follow their MasterFrame changes (or programs) and sensors
+        for flag, given in (("--engage-at", args.engage_at is not None),
+                            ("--disengage-at", args.disengage_at is not None)):
+            if given:
+                raise ConfigError(f"{flag} is for one belt: a cell's robots engage by their "
+                                  "master_frame changes or programs", file=cfg.file,
+                                  key=".tracking.cell")
+
+        def on_item(robot: str, rec) -> None:
+            if telemetry:
+                telemetry[0].cell_item(robot, rec)
+        app = CellSource(cell, duration_s=args.duration, on_item=on_item)
+    else:
+        app = ConveyorFollow(cyc(args.engage_at), cyc(args.disengage_at), args.offset,
+                             Mode.ABSOLUTE if args.mode == "absolute" else Mode.RELATIVE,
+                             end_cycle=cyc(args.duration))
     settings, cfg = canbus.bus_config_for(args, cfg)
     check_bus_load(cfg)  # before the bus is opened: a refusal leaves nothing to clean up
     for warning in apply_scheduling(args.fifo, args.cpu):
@@ -293,7 +315,6 @@ def main(argv: list[str] | None = None, prog: str = "cantrack run") -> int:
     changes = _Changes()
     prev: list = [None]
     signals = canbus.StopSignals().__enter__()
-    telemetry: list[Telemetry] = []
 
     def on_cycle(ctl: Controller, rec) -> None:
         key = (rec.phase, rec.state)
@@ -360,11 +381,19 @@ def main(argv: list[str] | None = None, prog: str = "cantrack run") -> int:
         status.close()
     code = ctl.exit_code()
     if telemetry:
-        telemetry[0].close(end, error, extra={"exit_code": code})
+        extra: dict = {"exit_code": code}
+        if isinstance(app, CellSource):
+            extra.update(robots={n: vars(x) for n, x in app.summaries.items()},
+                         frames=frame_counts(app))
+        telemetry[0].close(end, error, extra=extra)
     if args.report:
         write_json_atomic(args.report, run_report(ctl, changes, transport, code, end,
                                                   time.perf_counter() - wall0, error))
-    print(summary_table(ctl, [], time.perf_counter() - wall0))
+    if isinstance(app, CellSource):
+        print(format_cell_table(app))
+        print()
+    print(summary_table(ctl, [], time.perf_counter() - wall0,
+                        item_rows=not isinstance(app, CellSource)))
     if ctl.k:
         t = timing_summary(ctl)
         print(f"compute p99 {t['compute_us']['p99']:.0f} us, cpu/cycle p50 "

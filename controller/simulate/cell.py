@@ -13,25 +13,25 @@ then).  Per sample: sensors, MasterFrame changes due, programs, then one step of
 from __future__ import annotations
 
 import csv
-import math
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from ..cell.scenario import CellScenario, FrameChange, SensorSpec, parse_cell
-from ..conveyor import (ConveyorCell, EncoderSource, Event, EventKind, MovingFrame,
-                        RobotGroup, SimulatedAxis, TriggerBufferFull)
+from ..cell.run import CellRun, HeldSource, Latch
+from ..cell.scenario import CellScenario, SensorSpec, parse_cell
+from ..conveyor import EncoderSource, Event, EventKind, MovingFrame, RobotGroup, SimulatedAxis
 from ..conveyor.frame import LINEAR
 from ..conveyor.frames import LinearGeometry, RotaryGeometry
-from ..conveyor.sources import quantise_counts
+from ..conveyor.sources import SourceState, quantise_counts
 from ..conveyor.telemetry import ItemRecord, ItemStatus
-from ..errors import CantrackError
-from ..tracking import Mode, unwrap_counts
-from .conveyor import MasterSpec, PickProgram, master_fn
+from ..tracking import unwrap_counts
+from .conveyor import MasterSpec, master_fn
 
-__all__ = ["CellScenario", "CellResult", "parse_cell", "run_cell", "write_cell_trace",
+__all__ = ["CellScenario", "CellResult", "parse_cell", "run_cell", "record_cell", "replay_cell",
+           "write_cell_trace",
            "format_cell_summary", "plot_cell_result"]
 
 
@@ -99,114 +99,90 @@ def _source(ms: MasterSpec, T: float, name: str):
 
 
 def run_cell(sc: CellScenario) -> CellResult:
-    """Run a validated cell scenario."""
+    """Run a validated cell scenario (the per-sample order of :class:`~controller.cell.run.CellRun`;
+    each frame its own source object per master, a sensor's TRIGGER latching the exact master
+    value at the sensor time, or the encoder count then)."""
     T = sc.sample_time_s
     n = sc.n_samples
-    frames: dict[str, MovingFrame] = {}
-    latch: dict[str, list] = {}
+    sources: dict[str, list[tuple[Any, float]]] = {}
+    latch_fns: dict[str, list] = {}
     for fs in sc.frames:
         if fs.group is not None:
-            continue   # made once its master robot exists
-        srcs, fns = [], []
+            continue
         per = []
+        fns = []
         for mname in fs.masters:
             src, fn, cpu = _source(sc.masters[mname], T, mname)
-            srcs.append(src)
+            per.append((src, cpu))
             fns.append((fn, sc.masters[mname]))
-            per.append(cpu)
-        s = fs.spec
-        assert s is not None   # (a frame with masters has its geometry)
-        if s.type == LINEAR:
-            frames[fs.name] = MovingFrame(
-                fs.name, srcs, directions=list(fs.directions),
-                scales=[k / c for k, c in zip(fs.scales, per)], origin=s.origin,
-                limits=s.limits, window=fs.window, world=fs.world)
-        else:
-            frames[fs.name] = MovingFrame(
-                fs.name, srcs, type=s.type, upstream=s.upstream, arc_point=s.arc_point,
-                downstream=s.downstream, up_master=s.up_master * per[0],
-                down_master=s.down_master * per[0], limits=s.limits, window=fs.window,
-                world=fs.world)
-        latch[fs.name] = fns
-    robots: dict[str, RobotGroup] = {}
-    programs: dict[str, PickProgram] = {}
-    for rs in sc.robots:
-        r = rs.robot
-        robot = RobotGroup(r.name, sc.params.with_(mode=Mode(r.slave)), start=r.start,
-                           base=r.base, tool=r.tool, motion_limits=r.motion,
-                           buffer_capacity=r.buffer_capacity, default_mode=r.slave,
-                           kinematics=rs.kinematics)
-        for fname, types in rs.track_types:
-            robot.track_types(fname, types)
-        robots[r.name] = robot
-    for fs in sc.frames:
-        if fs.group is not None:
-            frames[fs.name] = MovingFrame.group(
-                fs.name, robots[fs.group.robot], transform=fs.group.transform,
-                axis=fs.group.axis, window=fs.window, world=fs.world)
-    frames = {fs.name: frames[fs.name] for fs in sc.frames}   # the file's order
-    for rs in sc.robots:
-        r = rs.robot
-        robot = robots[r.name]
-        if rs.program is not None:
-            assert rs.program_frame is not None
-            programs[r.name] = PickProgram(robot, frames[rs.program_frame], rs.program, r.slave)
-    cell = ConveyorCell(list(frames.values()), list(robots.values()))
+        sources[fs.name] = per
+        latch_fns[fs.name] = fns
+    run = CellRun(sc.frames, sc.robots, sc.sensors, sc.params, sources)
+    frames = run.frames
 
-    def values_at(fname: str, t: float) -> tuple[float, ...]:
+    def values_at(sen: SensorSpec, i: int) -> tuple[float, ...]:
+        t = sen.times[i]
         out = []
-        f = frames[fname]
-        for i, (fn, ms) in enumerate(latch[fname]):
+        f = frames[sen.frame]
+        for j, (fn, ms) in enumerate(latch_fns[sen.frame]):
             v = fn(t)[0]
             if ms.encoder is not None:
                 c = quantise_counts(v, ms.encoder.counts_per_unit, ms.encoder.modulus)
                 if ms.encoder.modulus:
-                    c = unwrap_counts(int(round(f.source_values()[i])), c, ms.encoder.modulus)
+                    c = unwrap_counts(int(round(f.source_values()[j])), c, ms.encoder.modulus)
                 v = float(c)
             out.append(v)
         return tuple(out)
 
-    by_k: dict[int, list[tuple[SensorSpec, int]]] = {}
-    for sen in sc.sensors:
-        for i, t in enumerate(sen.times):
-            by_k.setdefault(int(math.floor(t / T + 1e-9)), []).append((sen, i))
-    changes: dict[int, list[tuple[str, FrameChange]]] = {}
-    for rs in sc.robots:
-        for c in rs.changes:
-            changes.setdefault(int(round(c.time_s / T)), []).append((rs.name, c))
-    triggers: list[tuple[int, str, str, int, int]] = []
-    extra: dict[str, list[Event]] = {name: [] for name in robots}
+    return record_cell(sc, run, n, values_at)
+
+
+def replay_cell(sc: CellScenario, inputs: Sequence[Mapping[str, Sequence[SourceState]]],
+                latches: Mapping[tuple[int, str, int], tuple[float, ...]]) -> CellResult:
+    """Run ``sc`` on given inputs instead of its masters: each frame's master values of
+    sample 0 and of every loop index after it (``inputs[k][frame]``: one
+    :class:`~controller.conveyor.sources.SourceState` per DOF [mm of belt, mm/s, mm/s²]:
+    master units are mm, whatever counts the scenario's encoders give) and the sensors'
+    latched values ``latches[(k, frame, trigger index)]`` [mm].  The bus controller's cell
+    source records both (``CellSource(keep_inputs=True)``): the identity test between the
+    shells feeds them here.  ``len(inputs) - 1`` loop indices are run."""
+    held: dict[str, list[HeldSource]] = {}
+    for fs in sc.frames:
+        if fs.group is None:
+            held[fs.name] = [HeldSource(f"{fs.name}.{m}") for m in fs.masters]
+
+    def hold(k: int) -> None:
+        for fname, srcs in held.items():
+            for h, s in zip(srcs, inputs[k][fname]):
+                h.hold(s)
+
+    hold(0)
+    run = CellRun(sc.frames, sc.robots, sc.sensors, sc.params,
+                  {f: [(h, 1.0) for h in hs] for f, hs in held.items()})
+
+    def latch(sen: SensorSpec, i: int) -> tuple[float, ...]:
+        return latches[(run.k, sen.frame, i)]
+
+    return record_cell(sc, run, len(inputs) - 1, latch, before=lambda k: hold(k + 1))
+
+
+def record_cell(sc: CellScenario, run: CellRun, n: int, latch: Latch,
+                before: Callable[[int], None] | None = None) -> CellResult:
+    """Step ``run`` ``n`` times with the sensors' ``latch`` and record every sample (the
+    :class:`CellResult` of the scenario ``sc``); ``before(k)`` is called before loop index
+    ``k`` (a replay holds its inputs)."""
+    T = sc.sample_time_s
+    frames, robots = run.frames, run.robots
     traces = {name: _Trace([rg.setpoint.pos], [rg.setpoint.ori], [0], [0], [""], [])
               for name, rg in robots.items()}
     mvals = {name: [f.source_values()] for name, f in frames.items()}
-    last: dict[str, tuple[Event, ...]] = dict.fromkeys(robots, ())
     for k in range(n):
-        for sen, i in by_k.get(k, ()):
-            group = frames[sen.frame].group_source is not None
-            vals = None if group else values_at(sen.frame, sen.times[i])
-            for rname in sen.robots:
-                try:
-                    e = robots[rname].trigger(frames[sen.frame], values=vals, dr_mm=sen.dr_mm[i],
-                                              item_type=sen.types[i],
-                                              offset=sen.offset if group else None)
-                except TriggerBufferFull as exc:
-                    extra[rname].append(Event(k, EventKind.TRIGGER_REJECTED, sen.frame, message=str(exc)))
-                    continue
-                triggers.append((k, rname, sen.frame, e.id, e.item_type))
-        for rname, c in changes.get(k, ()):
-            try:
-                robots[rname].set_master_frame(frames[c.frame] if c.frame else None)
-            except CantrackError as exc:
-                extra[rname].append(Event(k, EventKind.COMMAND_ERROR, c.frame or "",
-                                          message=str(exc)))
-        for rname, prog in programs.items():
-            prog.tick(last[rname])
-        outs = cell.step()
+        if before is not None:
+            before(k)
+        outs, extra = run.step(latch)
         for rname, out in outs.items():
             tr = traces[rname]
-            last[rname] = out.events
             tr.events.extend(extra[rname])
-            extra[rname].clear()
             tr.events.extend(out.events)
             tr.pos.append(out.setpoint.pos)
             tr.ori.append(out.setpoint.ori)
@@ -218,13 +194,13 @@ def run_cell(sc: CellScenario) -> CellResult:
     rt = {}
     for name, rg in robots.items():
         tr = traces[name]
-        pg = programs.get(name)
+        pg = run.programs.get(name)
         rt[name] = RobotTrace(name, np.array(tr.pos), np.array(tr.ori), np.array(tr.imfs),
                               np.array(tr.slave), tr.mf, tr.events,
                               [rg.records[i] for i in sorted(rg.records)],
                               dict(pg.picks) if pg is not None else {}, rg)
     return CellResult(sc, np.arange(n + 1) * T, {k: np.array(v) for k, v in mvals.items()},
-                      rt, frames, triggers)
+                      rt, frames, list(run.triggers))
 
 
 # -- outputs --------------------------------------------------------------------------------

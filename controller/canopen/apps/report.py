@@ -21,6 +21,7 @@ from ..io.files import json_safe
 from .demo import Outcome
 
 if TYPE_CHECKING:
+    from ...conveyor.telemetry import ItemRecord
     from ..master.cycle import Controller, CycleRecord
     from .demo import Item
 
@@ -72,12 +73,15 @@ TABLE_ROWS = 30
 
 def summary_table(ctl: Controller, items: Sequence[Item], wall_s: float,
                   counts: tuple[int, int, int] | None = None,
-                  ignored_count: int | None = None) -> str:
+                  ignored_count: int | None = None, item_rows: bool = True) -> str:
     """The run's summary; ``counts`` = (placed, missed, seen) of all items when ``items``
-    holds only the last ones."""
+    holds only the last ones; ``item_rows`` False: only the run's lines (cycles, bus load,
+    timing; a cell prints its items itself)."""
     T = ctl.cfg.period_s
     lines = [(f"{'item':>4}  {'outcome':<7}  {'trigger s':>9}  {'sync after s':>12}  "
               f"{'max err mm':>10}  {'u at pick mm':>12}  note")]
+    if not item_rows:
+        lines = []
     if len(items) > TABLE_ROWS:
         lines.append(f"  ... {len(items) - TABLE_ROWS} items before these")
         items = items[-TABLE_ROWS:]
@@ -100,12 +104,15 @@ def summary_table(ctl: Controller, items: Sequence[Item], wall_s: float,
         ignored = sum(1 for i in items if i.outcome is Outcome.IGNORED)
         seen = len(items)
     sim_s = ctl.k * T
-    lines.append("")
-    lines.append(f"items placed {placed}, missed {missed}, "
-                 + (f"ignored {ignored} (type not tracked), " if ignored else "")
-                 + f"of {seen}; "
-                 f"{ctl.k} cycles = {sim_s:.2f} s simulated in {wall_s:.2f} s wall "
-                 f"({sim_s / wall_s if wall_s else math.inf:.1f}x real time)")
+    run = (f"{ctl.k} cycles = {sim_s:.2f} s simulated in {wall_s:.2f} s wall "
+           f"({sim_s / wall_s if wall_s else math.inf:.1f}x real time)")
+    if item_rows:
+        lines.append("")
+        lines.append(f"items placed {placed}, missed {missed}, "
+                     + (f"ignored {ignored} (type not tracked), " if ignored else "")
+                     + f"of {seen}; " + run)
+    else:
+        lines.append(run)
     lines.append(f"bus load {100 * ctl.bus_load.load:.1f} % "
                  f"({ctl.bus_load.bits_per_cycle:.0f} bit per {T * 1e3:g} ms cycle at "
                  f"{ctl.cfg.master.baudrate_kbit} kbit/s); events {ctl.events.total}")
@@ -171,6 +178,16 @@ class Telemetry:
         d: dict[str, Any] = {"type": "item"}
         d.update(asdict(it))
         d["t_s"] = t_s if t_s is not None else self.ctl.k * self.ctl.cfg.period_s
+        self.out.write(d, t_s=d["t_s"])
+        self.out.flush()
+
+    def cell_item(self, robot: str, rec: ItemRecord) -> None:
+        """An item of a cell's robot (:mod:`.cell`): its conveyor-model record (frame, type,
+        status, times [s since tracking began], peak errors [mm])."""
+        d: dict[str, Any] = {"type": "item"}
+        d.update(rec.as_dict())
+        d["robot"] = robot
+        d["t_s"] = self.ctl.k * self.ctl.cfg.period_s
         self.out.write(d, t_s=d["t_s"])
         self.out.flush()
 

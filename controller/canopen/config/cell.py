@@ -34,6 +34,9 @@ deg, s; master values in master units (mm of belt).  ``*`` = required::
       tracker: {...}                 # as without a cell: one tracker set for every robot
       cycle, timeouts, reactions     # as without a cell
 
+The cell runs on the bus with :class:`controller.canopen.apps.cell.CellSource` (``cantrack
+demo``, ``cantrack run``; docs/spec/conveyor-extensions.md#5.1).
+
 The type and dimension a robot tracks with (:class:`controller.conveyor.Kinematics`, checked
 against each frame's ``world``) follow from its drives: ``cartesian`` over x, y -> dimension
 2, with z -> 3, with c -> 4.  A drive belongs to one robot; a robot's axis names are its own

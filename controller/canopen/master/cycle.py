@@ -43,7 +43,7 @@ from dataclasses import dataclass, field
 from enum import Enum
 from typing import TYPE_CHECKING
 
-from ...errors import CanError, ConfigError
+from ...errors import CanError
 from ...kinematics import CountsConverter
 from ...kinematics import create as create_kinematics
 from ...tracking import MasterEstimate, MotionState, TrackState
@@ -189,14 +189,6 @@ class Controller:
                  enforce_bus_load: bool = True) -> None:
         if cfg.tracking is None:
             raise CanError(f"{cfg.file}: no .tracking section: nothing to control")
-        if cfg.tracking.cell is not None:
-            # one kinematics over all axes, one master view: the cycle runs one belt and one
-            # robot; a cell's frames and robots are read and checked (config.cell) but have
-            # no setpoint source on the bus yet
-            raise ConfigError("a cell (several encoders, frames, robots) is not run by the "
-                              "bus controller yet: run it offline with cantrack simulate "
-                              "(the same frames, robots and sensors in a cell scenario)",
-                              file=cfg.file, key=".tracking.cell")
         self.cfg = cfg
         self.tc = cfg.tracking
         #: frames checked before decoding, bad ones counted per COB-ID (:mod:`.frames`);
@@ -216,11 +208,25 @@ class Controller:
         self.bus_load: BusLoad = check_bus_load(cfg) if enforce_bus_load else bus_load(cfg)
         self.period_ns = cfg.period_ns
         self.compute_ns = int(self.tc.compute_at * self.period_ns)
-        self.kinematics = create_kinematics(self.tc.kinematics, [a.name for a in self.tc.axes])
+        cell = self.tc.cell
+        #: a cell (``.tracking.cell``): several robots, each its own kinematics over its own
+        #: drives (the source gives axis setpoints); ``kinematics`` is then the first robot's
+        #: (the pose in the source's start), the tracking error is the source's per robot
+        self.kinematics = create_kinematics(self.tc.kinematics, [a.name for a in self.tc.axes]) \
+            if cell is None else cell.robots[0].machine()
         self.counts = CountsConverter([a.scale for a in self.tc.axes])
         self.axes = [AxisIO(cfg, a.name, a.node, a.scale, transport, self.hygiene)
                      for a in self.tc.axes]
-        self.master = MasterInput(cfg, transport, self.hygiene)
+        #: one input per master encoder (a cell's ``encoders``, else ``.tracking.conveyor``);
+        #: ``master`` is the first (the record's belt, the latency figure)
+        self.masters = [MasterInput(cfg, transport, self.hygiene, encoder=e)
+                        for e in self.tc.encoders] if cell is not None \
+            else [MasterInput(cfg, transport, self.hygiene)]
+        self.master = self.masters[0]
+        self._other_masters = self.masters[1:]
+        #: each master's event of this cycle (a cell's context gives them all)
+        self._master_events = [MasterEvent.NONE] * len(self.masters)
+        self._cell = cell is not None
         self.sync = SyncProducer(transport, 0x80, cfg.master.sync_overflow)
         self.heartbeats = HeartbeatMonitor(transport, self.hygiene)
         self.emcy = EmcyMonitor(transport, self.hygiene, cfg)
@@ -234,14 +240,14 @@ class Controller:
         #: check, and the (joint, x/y/z) index pairs of the translation axes
         self._limits = [(a, a.scale.min, a.scale.max, a.quick_stop_decel) for a in self.axes]
         self._xyz = [(j, "xyz".find(name)) for j, name in enumerate(self.kinematics.axes)
-                     if "xyz".find(name) >= 0]
+                     if "xyz".find(name) >= 0] if cell is None else []
         self._sdo_statusword: dict[int, int] = {}  # node-ID -> 6041h read by SDO (stopping)
         for a in self.axes:
             transport.subscribe(0x580 + a.node_id, self._on_sdo_answer)
         self._internal_errors = 0
         self._bad_reported: set[int] = set()
         #: the drives' and the encoder's labels (their heartbeat loss always stops)
-        self._motion_labels = {a.label for a in self.axes} | {self.master.label}
+        self._motion_labels = {a.label for a in self.axes} | {m.label for m in self.masters}
         #: the source has been started (tracking runs: a PLC's engage can act)
         self.tracking = False
         #: the source's status after its last start/step (the record, the PLC node)
@@ -339,10 +345,13 @@ class Controller:
             self.t0 += slip
             deadline += slip
             self.timing.overruns += 1
-            self.master.skip(periods)  # the belt moved on meanwhile
+            for m in self.masters:
+                m.skip(periods)  # the belt moved on meanwhile
             self._master_for.clear()
         transport.run_until(deadline, precise=True)
         self.master.cycle = k
+        for m in self._other_masters:
+            m.cycle = k
         for a in self.axes:
             a.cycle = k
         cpu0 = time.thread_time_ns()
@@ -437,6 +446,10 @@ class Controller:
         s = master.snapshot
         if s is None or s[2] != k:
             return False
+        for m in self._other_masters:
+            s = m.snapshot
+            if s is None or s[2] != k:
+                return False
         for a in self.axes:
             inp = a.input
             if inp is None or inp.cycle != k:
@@ -453,19 +466,18 @@ class Controller:
     def _compute(self, k: int, t_sent: int, deadline: int) -> CycleRecord | None:
         t_s = (deadline - self.t0) * 1e-9
         self._supervise(k, t_s)
-        event, est = self.master.update(k, (t_sent - deadline) * 1e-9)
+        late_s = (t_sent - deadline) * 1e-9
+        event, est = self.master.update(k, late_s)
         self._master_event = _MASTER_EVENTS[event]
-        if event == "silent":
-            self._master_silent(k, t_s)
-        elif event == "outlier":
-            self.events.add(k, t_s, self.master.label, "master_outlier",
-                            f"encoder sample {self.master.outlier_mm:+.3f} mm off what the "
-                            f"belt can do", "rejected, the estimate coasts", level=20)
-        elif event == "lost":
-            self._master_outliers_lost(k, t_s)
-        elif event == "back":
-            self.events.add(k, t_s, self.master.label, "master_back",
-                            "encoder samples arrive again", "estimator restarted", level=20)
+        if event is not None:
+            self._master_report(self.master, event, k, t_s)
+        if self._cell:
+            self._master_events[0] = self._master_event
+            for i, m in enumerate(self._other_masters, 1):
+                ev = m.update(k, late_s)[0]
+                self._master_events[i] = _MASTER_EVENTS[ev]
+                if ev is not None:
+                    self._master_report(m, ev, k, t_s)
         phase = self.phase
         setpoint = None
         if phase is Phase.ENABLING:
@@ -479,6 +491,29 @@ class Controller:
             return self._record(k, t_s, setpoint)
         self._tracking_error(k)  # nobody takes the record: only what the cycle itself uses
         return None
+
+    def _master_report(self, m: MasterInput, event: str, k: int, t_s: float) -> None:
+        """The event of master input ``m`` in this cycle (masterio's name)."""
+        if event == "silent":
+            self._master_silent(k, t_s, m)
+        elif event == "outlier":
+            self.events.add(k, t_s, m.label, "master_outlier",
+                            f"encoder sample {m.outlier_mm:+.3f} mm off what the "
+                            f"belt can do", "rejected, the estimate coasts", level=20)
+        elif event == "lost":
+            self._master_outliers_lost(k, t_s, m)
+        elif event == "back":
+            self.events.add(k, t_s, m.label, "master_back",
+                            "encoder samples arrive again", "estimator restarted", level=20)
+
+    def _master_views(self) -> tuple[MasterView, ...]:
+        """A cell's every encoder as the source's context shows it (empty without a cell)."""
+        if not self._cell:
+            return ()
+        zero = MasterEstimate(0.0, 0.0, 0.0)
+        return tuple(MasterView(m.last_estimate if m.last_estimate is not None else zero,
+                                m.belt_mm, m.ready, ev)
+                     for m, ev in zip(self.masters, self._master_events))
 
     # -- phases ------------------------------------------------------------------------------
     def _enable_step(self, k: int, t_s: float) -> None:
@@ -515,7 +550,7 @@ class Controller:
                 target = inp.actual
                 ready = False
             a.send(cw, target)
-        if ready and self.master.ready:
+        if ready and all(m.ready for m in self.masters):
             joints = self.counts.from_counts([a.hold for a in self.axes])
             self.phase = Phase.RUNNING
             self.events.add(k, t_s, "controller", "enabled",
@@ -524,7 +559,8 @@ class Controller:
                             level=20)
             self.status = self.source.start(SourceStart(
                 k, t_s, self.t0 + k * self.period_ns, self.cfg.period_s, self.tc, joints,
-                self.kinematics.pose(joints), self._drive_views(k)))
+                self.kinematics.pose(joints[:len(self.kinematics.axes)]), self._drive_views(k),
+                self._master_views()))
             self.tracking = True
         elif now - self._enable_start_ns > self.tc.timeouts.enable_s * 1e9:
             for a in self.axes:
@@ -537,7 +573,8 @@ class Controller:
                                f"could not enable within {self.tc.timeouts.enable_s:g} s: "
                                f"statusword {sw}, last controlword {a.controlword:04X}h")
                     return
-            self._fail(k, t_s, self.master.label, "enable_timeout",
+            late = next((m for m in self.masters if not m.ready), self.master)
+            self._fail(k, t_s, late.label, "enable_timeout",
                        f"no encoder samples within {self.tc.timeouts.enable_s:g} s")
 
     def _drive_views(self, k: int) -> tuple[DriveView, ...]:
@@ -618,7 +655,8 @@ class Controller:
         self._commands.clear()
         ctx = CycleContext(k, t_s, deadline,
                            MasterView(est, m.belt_mm, m.ready, self._master_event),
-                           self._drive_views(k), commands, self.last_tracking_error)
+                           self._drive_views(k), commands, self.last_tracking_error,
+                           self._master_views())
         out = self.source.step(ctx)
         self.last_output = out
         self.status = out.status
@@ -629,9 +667,17 @@ class Controller:
         sp = out.setpoint
         if isinstance(sp, AxisSetpoints):
             joints = sp.positions
+            if len(joints) != len(self.axes):
+                raise CycleError(f"the setpoint source gave {len(joints)} axis targets for "
+                                 f"{len(self.axes)} drives")
             commands_out = sp.commands
-            bad = None
+            bad = None if sp.velocities is None else \
+                self._limit_violation(joints, sp.velocities)
         else:
+            if self._cell:
+                raise CycleError("a cell's setpoint source must give every drive's target "
+                                 "(axis setpoints: each robot has its own kinematics), not "
+                                 "one tool setpoint")
             joints = self.kinematics.joints(sp)
             commands_out = None
             bad = self._limit_violation(joints, self.kinematics.joint_velocities(sp))
@@ -826,21 +872,21 @@ class Controller:
         if self.failure is None:
             self.failure = EnableError(f"{source}: {detail}")
 
-    def _master_outliers_lost(self, k: int, t_s: float) -> None:
-        cc = self.master.conf.conditioning
+    def _master_outliers_lost(self, k: int, t_s: float, m: MasterInput) -> None:
+        cc = m.conf.conditioning
         n = cc.max_outliers if cc is not None else 0
         engaged = self.status.engaged  # (the source de-syncs, told by the context)
-        self.events.add(k, t_s, self.master.label, "master_lost",
+        self.events.add(k, t_s, m.label, "master_lost",
                         f"{n} encoder samples in a row off what the belt can do (last "
-                        f"{self.master.outlier_mm:+.3f} mm)",
+                        f"{m.outlier_mm:+.3f} mm)",
                         "de-sync on the extrapolated master (MASTER_LOST)" if engaged else
                         "conditioner restarted")
 
-    def _master_silent(self, k: int, t_s: float) -> None:
+    def _master_silent(self, k: int, t_s: float, m: MasterInput) -> None:
         engaged = self.status.engaged  # (the source de-syncs, told by the context)
         reaction = "de-sync on the extrapolated master" if engaged else "waiting for samples"
-        self.events.add(k, t_s, self.master.label, "master_silent",
-                        f"no encoder sample for {self.master.silent} cycles", reaction)
+        self.events.add(k, t_s, m.label, "master_silent",
+                        f"no encoder sample for {m.silent} cycles", reaction)
 
     def _supervise(self, k: int, t_s: float) -> None:
         now = self.clock.now_ns()
@@ -1014,7 +1060,8 @@ class Controller:
             k = self.k
             deadline = self.t0 + k * self.period_ns
             self.transport.run_until(deadline)
-            self.master.cycle = k
+            for m in self.masters:
+                m.cycle = k
             for a in self.axes:
                 a.cycle = k
             self.sync.send()

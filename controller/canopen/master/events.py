@@ -48,6 +48,10 @@ class EventKind(StrEnum):
     ERROR_PASSIVE = "error_passive"      #: the CAN controller error passive
     BUS_OFF = "bus_off"                  #: the CAN controller bus-off
     TRIGGER_DROPPED = "trigger_dropped"  #: the demo: a full trigger buffer dropped an item
+    # a work cell (.tracking.cell, apps.cell)
+    HANDOFF = "handoff"                  #: a robot's following goes over to another frame
+    COMMAND_ERROR = "command_error"      #: a command the cell refused (the run goes on)
+    START_POSE = "start_pose"            #: a robot starts where its drives are, not its start
     # the controller's own node for a PLC (docs/plc.md)
     PLC_NOT_OPERATIONAL = "plc_not_operational"  #: a motion write outside NMT OPERATIONAL
     PLC_NO_COMMANDER = "plc_no_commander"  #: a motion write without the commander's heartbeat

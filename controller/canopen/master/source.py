@@ -110,7 +110,9 @@ class CycleContext(NamedTuple):
     """Everything a source gets in cycle ``cycle``: ``t_s`` [s] from the start of the cycle
     clock (SYNC k's deadline), ``t_ns`` the same on the controller clock [ns]; the master; the
     drives in the order of ``.tracking.axes``; the PLC's commands since the last cycle;
-    ``tracking_error_mm`` the |actual - target| over x, y, z of the last cycle's record."""
+    ``tracking_error_mm`` the |actual - target| over x, y, z of the last cycle's record;
+    ``masters``: a cell's every encoder (``.tracking.cell.encoders``, in that order; the
+    first is ``master``), empty without a cell."""
 
     cycle: int
     t_s: float
@@ -119,6 +121,7 @@ class CycleContext(NamedTuple):
     drives: tuple[DriveView, ...]
     commands: tuple[Command, ...] = ()
     tracking_error_mm: float = 0.0
+    masters: tuple[MasterView, ...] = ()
 
 
 @dataclass(frozen=True, slots=True)
@@ -135,6 +138,8 @@ class SourceStart:
     joints: tuple[float, ...]
     pose: MotionState
     drives: tuple[DriveView, ...] = ()
+    #: a cell's every encoder at the start (as :attr:`CycleContext.masters`; empty without)
+    masters: tuple[MasterView, ...] = ()
 
 
 @dataclass(frozen=True, slots=True)
@@ -182,10 +187,14 @@ class DriveCommand(Enum):
 
 class AxisSetpoints(NamedTuple):
     """One target per axis [mm | deg, machine coordinate, the order of ``.tracking.axes``],
-    and per axis what its drive is told (None: every drive ENABLE)."""
+    and per axis what its drive is told (None: every drive ENABLE).  ``velocities`` [mm/s |
+    deg/s per axis]: given, the cycle checks the targets against the axis limits as it does
+    a tool setpoint's joints (the target, and where a quick stop at 6085h from that velocity
+    ends); None: the source keeps its axes within their limits itself (the axis jobs)."""
 
     positions: tuple[float, ...]
     commands: tuple[DriveCommand, ...] | None = None
+    velocities: tuple[float, ...] | None = None
 
 
 #: a cycle's setpoint: a tool location [mm, deg] (through the kinematics) or axis targets

@@ -1,0 +1,267 @@
+"""The work cell on the bus (docs/spec/conveyor-extensions.md#5.1): ``.tracking.cell`` run by
+the cycle with :class:`controller.canopen.apps.cell.CellSource` on the simulated devices, and
+its identity with the offline simulator's run of the same cell.
+
+The identity: the stepped bus run of examples/bus/cell_handoff.yml and the simulator's run of
+its twin examples/cell_bus_handoff.yaml step the same pure core
+(:class:`controller.cell.run.CellRun`).  Their master inputs differ by construction: the bus
+estimates each belt from the encoder's counts (MasterInput: counts/40.96 -> mm, a quadratic
+fit over 16 samples predicting the SYNC the drives reach the setpoint at, 1 + d cycles ahead);
+the simulator's own encoder source fits counts over its window at the sample time.  So the
+bus run records what it held in each frame and latched for each sensor, and the simulator is
+fed exactly that (``replay_cell``): then every robot's setpoint of every sample, every item
+record and every event are bit-identical, and the counts the bus sent to each drive are the
+simulator's setpoints through the same counts converter.  The simulator on its own masters
+agrees on every item's outcome, and its setpoints are those of the bus up to the belt travel
+of the 1 + d cycles the bus looks ahead.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from controller.canopen.apps.cell import CellSource
+from controller.canopen.apps.follow import ConveyorFollow
+from controller.canopen.config import load_config, parse_config
+from controller.canopen.master.cycle import EXIT_ERROR, EXIT_OK, EXIT_REACTION, Controller
+from controller.canopen.protocol.cia402 import State
+from controller.canopen.slave.world import SimWorld
+from controller.cli import demo as cmd_demo
+from controller.errors import ConfigError
+from controller.simulate.cell import replay_cell, run_cell
+from controller.simulate.scenario import load_scenario
+
+ROOT = Path(__file__).resolve().parents[1]
+BUS = ROOT / "examples" / "bus" / "cell_handoff.yml"
+SCENARIO = ROOT / "examples" / "cell_bus_handoff.yaml"
+TEXT = BUS.read_text()
+
+
+def _run(cfg, src, *, inject=None, max_cycles=None):
+    with SimWorld(cfg) as world:
+        ctl = Controller(cfg, world.transport, src, keep_trace=True)
+        if inject is not None:
+            inject(world)
+        ctl.boot()
+        ctl.start()
+        ctl.run(max_cycles=max_cycles)
+    return ctl
+
+
+@pytest.fixture(scope="module")
+def bus_run():
+    cfg = load_config(BUS)
+    sc = load_scenario(SCENARIO)
+    src = CellSource(cfg.tracking.cell, duration_s=sc.duration_s, record=10**6,
+                     keep_inputs=True)
+    ctl = _run(cfg, src)
+    return cfg, sc, src, ctl
+
+
+def test_the_cell_runs_on_the_bus_and_ends_cleanly(bus_run):
+    cfg, sc, src, ctl = bus_run
+    assert ctl.exit_code() == EXIT_OK and ctl.failure is None
+    assert src.run.k == sc.n_samples                         # 6 s of tracking, 1500 cycles
+    kinds = [e.kind for e in ctl.events]
+    assert kinds.count("enabled") == 1 and "handoff" in kinds
+    # both robots' drives followed; every drive disabled at the end
+    assert all(s == State.SWITCHED_ON.value or s == "switched on" or s
+               for s in [d.state_name for d in ctl.stops])
+    last = ctl.trace[-1]
+    assert last.phase == "stopped"
+    from controller.canopen.protocol.cia402 import decode_statusword
+    assert all(decode_statusword(sw) is not State.OPERATION_ENABLED for sw in last.statuswords)
+    r1, r2 = src.summaries["r1"], src.summaries["r2"]
+    assert (r1.triggered, r1.caught, r1.missed, r1.handoffs) == (2, 2, 0, 1)
+    assert (r2.triggered, r2.caught, r2.ignored, r2.handoffs) == (2, 1, 1, 0)
+    # the drives follow their targets: |actual - target| well inside a count's worth of mm
+    assert 0.0 < r1.max_error_mm < 0.01 and 0.0 < r2.max_error_mm < 0.01
+
+
+def test_bus_and_simulator_give_the_same_setpoints_and_items(bus_run):
+    """Bit-identical on the same inputs (see the module docstring)."""
+    cfg, sc, src, ctl = bus_run
+    tc = cfg.tracking
+    assert sc.params == tc.tracker                  # the same tracker for every robot
+    assert sc.frames == tc.cell.frames and sc.sensors == tc.cell.sensors
+    assert sc.robots == tuple(r.spec for r in tc.cell.robots)
+    sim = replay_cell(sc, src.inputs, src.latches)
+    assert len(sim.time_s) == src.recorded == sc.n_samples + 1
+    for name, tr in sim.robots.items():
+        bus = src.traces[name]
+        assert np.array_equal(np.array(bus.pos), tr.setpoint_pos), name
+        assert np.array_equal(np.array(bus.ori), tr.setpoint_ori), name
+        assert bus.imfs == tr.imfs.tolist() and bus.mf == tr.master_frame
+        assert bus.events == tr.events
+        assert [r.as_dict() for r in src.records(name)] == [r.as_dict() for r in tr.records]
+    assert src.run.triggers == sim.triggers
+    # the counts on the bus are the simulator's setpoints through the drives' scales
+    # (the start's cycle holds the drives where they were enabled; loop index n is the
+    # cycle after it + n and sends sample n + 1)
+    running = [r for r in ctl.trace if r.phase == "running"][1:]
+    assert len(running) == sc.n_samples
+    conv = ctl.counts
+    for n, rec in enumerate(running):
+        joints = []
+        for rc in tc.cell.robots:
+            joints.extend(sim.robots[rc.name].setpoint_pos[n + 1][:len(rc.axes)])
+        assert rec.targets == tuple(conv.to_counts(joints)), n
+
+
+def test_the_simulator_on_its_own_masters_agrees(bus_run):
+    """The simulator's own belts (200 and 150 mm/s through its encoder source): the same
+    item outcomes, synchronised within a few samples, the setpoints within the belt travel of
+    the 1 + d cycles the bus predicts ahead (plus 0.1 mm of estimator and latch)."""
+    cfg, sc, src, ctl = bus_run
+    sim = run_cell(sc)
+    T = sc.sample_time_s
+    lead_s = (1 + cfg.tracking.drive_delay_cycles) * T
+    for name, tr in sim.robots.items():
+        bus = src.records(name)
+        assert [(r.item_id, r.frame, r.item_type, r.status) for r in bus] == \
+            [(r.item_id, r.frame, r.item_type, r.status) for r in tr.records], name
+        for a, b in zip(bus, tr.records):
+            if b.synced_s is not None:
+                assert abs(a.synced_s - b.synced_s) <= 4 * T + 1e-9, (name, a, b)
+    # following: the bus is ahead by lead_s of belt travel (r1 on A at 200 mm/s, r2 on B2
+    # at 150 mm/s), in the direction of the belt
+    for name, speed, d, (t0, t1) in (("r1", 200.0, 0, (0.8, 1.9)),
+                                     ("r2", 150.0, 1, (1.5, 4.4))):
+        k = slice(round(t0 / T), round(t1 / T))
+        diff = np.array(src.traces[name].pos)[k] - sim.robots[name].setpoint_pos[k]
+        assert np.all(np.abs(diff[:, d] - speed * lead_s) < 0.1), name
+        assert np.all(np.abs(np.delete(diff, d, axis=1)) < 1e-9), name
+
+
+def test_a_drive_fault_in_one_robot_stops_every_drive():
+    """Drive y2 (robot r2) faults while r1 follows belt A: all six drives quick-stop (each
+    confirmed by its statusword), none is left enabled, exit code 3."""
+    cfg = load_config(BUS)
+    src = CellSource(cfg.tracking.cell, duration_s=3.0)
+
+    def inject(world):
+        world.at(1.0, lambda: world.device("y2").inject_fault(0x2310))
+
+    ctl = _run(cfg, src, inject=inject)
+    stops = [e for e in ctl.events if e.reaction.startswith("quick stop")]
+    assert len(stops) == 1 and "y2" in stops[0].source and stops[0].kind in ("emcy",
+                                                                             "drive_fault")
+    assert any(e.kind == "drive_fault" and "y2" in e.source for e in ctl.events)
+    confirmed = {e.source for e in ctl.events if e.kind == "stop_confirmed"}
+    assert len(confirmed) == 6, confirmed                  # every drive of both robots
+    assert all(s.confirmed_cycle is not None for s in ctl.stops)
+    from controller.canopen.protocol.cia402 import decode_statusword
+    assert all(decode_statusword(sw) is not State.OPERATION_ENABLED
+               for sw in ctl.trace[-1].statuswords)
+    assert ctl.exit_code() == EXIT_REACTION
+    assert src.run.k < 3.0 / cfg.period_s                  # the run stopped early
+
+
+def test_a_setpoint_beyond_an_axis_limit_stops_every_drive(tmp_path):
+    """r1's x is limited to 600 mm: following belt A at 200 mm/s takes it there; the cycle's
+    limit check on the cell's axis setpoints (target and quick-stop end) stops all drives."""
+    text = TEXT.replace("x: {node: x1, counts_per_mm: 10000, min: -50, max: 1300}",
+                        "x: {node: x1, counts_per_mm: 10000, min: -50, max: 600}")
+    assert text != TEXT
+    path = tmp_path / "bus.yml"
+    path.write_text(text)
+    cfg = parse_config(text, str(path), base_dir=BUS.parent)
+    src = CellSource(cfg.tracking.cell, duration_s=3.0)
+    ctl = _run(cfg, src)
+    lim = [e for e in ctl.events if e.kind == "limit"]
+    assert lim and "x1" in lim[0].source and "outside [-50, 600]" in lim[0].detail
+    assert ctl.exit_code() == EXIT_REACTION
+    assert all(s.confirmed_cycle is not None for s in ctl.stops)
+
+
+def test_a_source_for_one_belt_is_refused_by_a_cell():
+    """A tool setpoint (one kinematics) for a cell of two robots: the cycle refuses it (the
+    controlled stop, exit code 2, saying why), never sends one robot's joints to six drives."""
+    cfg = load_config(BUS)
+    ctl = Controller.__new__(Controller)
+    with SimWorld(cfg) as world:
+        ctl = Controller(cfg, world.transport, ConveyorFollow(end_cycle=50), keep_trace=True)
+        ctl.boot()
+        ctl.start()
+        with pytest.raises(Exception, match="every drive's target"):
+            ctl.run(max_cycles=200)
+    assert ctl.exit_code() == EXIT_ERROR
+    assert all(s.confirmed_cycle is not None for s in ctl.stops)
+
+
+def test_a_robot_starts_where_its_drives_are(tmp_path):
+    """Drive x2 is 5 mm off r2's start: r2 starts at its drives' pose (no jump), said in a
+    start_pose event; the run is otherwise the same."""
+    text = TEXT.replace("x2: {initial_counts: 10000000,", "x2: {initial_counts: 10050000,")
+    assert text != TEXT
+    path = tmp_path / "bus.yml"
+    path.write_text(text)
+    cfg = parse_config(text, str(path), base_dir=BUS.parent)
+    src = CellSource(cfg.tracking.cell, duration_s=1.0, record=10**6)
+    ctl = _run(cfg, src)
+    ev = [e for e in ctl.events if e.kind == "start_pose"]
+    assert len(ev) == 1 and "'r2'" in ev[0].detail and "x=1005.000" in ev[0].detail
+    assert src.traces["r2"].pos[0] == (1005.0, 300.0, 100.0)
+    running = [r for r in ctl.trace if r.phase == "running"]
+    assert running[1].targets[3] == 10050000               # x2 held where it was
+    assert ctl.exit_code() == EXIT_OK
+
+
+def test_cantrack_demo_runs_the_cell(tmp_path, capsys):
+    """``cantrack demo CELL.yml``: summary per robot, frame and item; telemetry with each
+    robot's items and the counts per robot and frame; the plot."""
+    out = tmp_path / "out"
+    code = cmd_demo.main([str(BUS), "-q", "-o", str(out)])
+    text = capsys.readouterr().out
+    assert code == 0
+    rows: dict[str, list[str]] = {}     # the first row of each name: the robot, frame tables
+    for line in text.splitlines():
+        if line.startswith(("r1 ", "r2 ", "A ", "B ", "B2 ")):
+            rows.setdefault(line.split()[0], line.split())
+    assert rows["r1"][1:7] == ["2", "2", "0", "0", "0", "1"]      # items .. hand-offs
+    assert rows["r2"][1:7] == ["2", "1", "0", "0", "1", "0"]
+    assert rows["B2"][1:5] == ["2", "1", "0", "1"]
+    assert "2 robots, 3 frames, 2 encoders" in text
+    lines = [json.loads(x) for x in (out / "telemetry.jsonl").read_text().splitlines()]
+    assert lines[0]["type"] == "run" and lines[0]["cell"]["robots"] == {
+        "r1": ["x", "y", "z"], "r2": ["x", "y", "z"]}
+    assert len(lines[0]["axes"]) == 6
+    items = [d for d in lines if d["type"] == "item"]
+    assert sorted((d["robot"], d["item"], d["frame"], d["status"]) for d in items) == [
+        ("r1", 1, "A", "caught"), ("r1", 2, "B", "caught"),
+        ("r2", 1, "B2", "ignored"), ("r2", 2, "B2", "caught")]
+    end = lines[-1]
+    assert end["type"] == "end" and end["robots"]["r1"]["handoffs"] == 1
+    assert end["frames"]["A"] == {"triggered": 1, "caught": 1, "missed": 0, "ignored": 0}
+    assert (out / "demo.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert any(d["kind"] == "handoff" for d in lines if d["type"] == "event")
+
+
+def test_cantrack_demo_refuses_the_photo_eye_options_for_a_cell(tmp_path):
+    with pytest.raises(ConfigError, match="--items is for the demo's photo-eye"):
+        cmd_demo.main([str(BUS), "-q", "--items", "3", "-o", str(tmp_path)])
+
+
+def test_cantrack_demo_runs_the_cell_in_real_time(tmp_path, capsys):
+    """``--realtime``: the same cell on the wall clock (a 10 ms cycle, so that a loaded
+    machine keeps it), 1.5 s of tracking: r1 catches its item on belt A, r2 its type-2 item
+    on B2, no reaction, exit 0; the real-time figures are taken."""
+    text = TEXT.replace("sync_period: 4000 ", "sync_period: 10000 ")
+    assert text != TEXT
+    path = tmp_path / "bus.yml"
+    path.write_text(text.replace("../../eds/", str(ROOT / "eds") + "/"))
+    out = tmp_path / "out"
+    code = cmd_demo.main([str(path), "-q", "--no-plot", "--realtime", "--duration", "1.5",
+                          "-o", str(out)])
+    text = capsys.readouterr().out
+    assert code == 0, text
+    assert "SYNC jitter p50/p99/max" in text
+    lines = [json.loads(x) for x in (out / "telemetry.jsonl").read_text().splitlines()]
+    end = lines[-1]
+    assert end["type"] == "end" and end["reactions"] == 0
+    assert end["robots"]["r1"]["caught"] == 1 and end["robots"]["r2"]["caught"] == 1
+    assert end["timing"]["sync_jitter_us"]["n"] >= 1.5 / 0.010   # measured every cycle
