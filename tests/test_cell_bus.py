@@ -28,7 +28,7 @@ from controller.canopen.apps.cell import CellSource
 from controller.canopen.apps.follow import ConveyorFollow
 from controller.canopen.config import load_config, parse_config
 from controller.canopen.master.cycle import EXIT_ERROR, EXIT_OK, EXIT_REACTION, Controller
-from controller.canopen.protocol.cia402 import State
+from controller.canopen.protocol.cia402 import State, decode_statusword
 from controller.canopen.slave.world import SimWorld
 from controller.cli import demo as cmd_demo
 from controller.errors import ConfigError
@@ -68,13 +68,10 @@ def test_the_cell_runs_on_the_bus_and_ends_cleanly(bus_run):
     assert src.run.k == sc.n_samples                         # 6 s of tracking, 1500 cycles
     kinds = [e.kind for e in ctl.events]
     assert kinds.count("enabled") == 1 and "handoff" in kinds
-    # both robots' drives followed; every drive disabled at the end
-    assert all(s == State.SWITCHED_ON.value or s == "switched on" or s
-               for s in [d.state_name for d in ctl.stops])
+    # every drive of both robots is disabled at the end (shut down, holding)
     last = ctl.trace[-1]
-    assert last.phase == "stopped"
-    from controller.canopen.protocol.cia402 import decode_statusword
-    assert all(decode_statusword(sw) is not State.OPERATION_ENABLED for sw in last.statuswords)
+    assert last.phase == "stopped" and len(last.statuswords) == 6
+    assert all(decode_statusword(sw) is State.READY_TO_SWITCH_ON for sw in last.statuswords)
     r1, r2 = src.summaries["r1"], src.summaries["r2"]
     assert (r1.triggered, r1.caught, r1.missed, r1.handoffs) == (2, 2, 0, 1)
     assert (r2.triggered, r2.caught, r2.ignored, r2.handoffs) == (2, 1, 1, 0)
@@ -154,7 +151,6 @@ def test_a_drive_fault_in_one_robot_stops_every_drive():
     confirmed = {e.source for e in ctl.events if e.kind == "stop_confirmed"}
     assert len(confirmed) == 6, confirmed                  # every drive of both robots
     assert all(s.confirmed_cycle is not None for s in ctl.stops)
-    from controller.canopen.protocol.cia402 import decode_statusword
     assert all(decode_statusword(sw) is not State.OPERATION_ENABLED
                for sw in ctl.trace[-1].statuswords)
     assert ctl.exit_code() == EXIT_REACTION
@@ -182,7 +178,6 @@ def test_a_source_for_one_belt_is_refused_by_a_cell():
     """A tool setpoint (one kinematics) for a cell of two robots: the cycle refuses it (the
     controlled stop, exit code 2, saying why), never sends one robot's joints to six drives."""
     cfg = load_config(BUS)
-    ctl = Controller.__new__(Controller)
     with SimWorld(cfg) as world:
         ctl = Controller(cfg, world.transport, ConveyorFollow(end_cycle=50), keep_trace=True)
         ctl.boot()
