@@ -114,6 +114,8 @@ def run_cell_demo(args: argparse.Namespace, cfg: ControllerConfig) -> int:
             end, error = "error", f"{type(exc).__name__}: {exc}"
             raise
         finally:
+            for robot, rec in app.unfinished():   # (as the demo: the items still pending)
+                tel.cell_item(robot, rec)
             tel.close(end, error, extra={
                 "robots": {n: vars(s) for n, s in app.summaries.items()},
                 "frames": frame_counts(app), "wall_s": time.perf_counter() - wall0})

@@ -385,6 +385,8 @@ def main(argv: list[str] | None = None, prog: str = "cantrack run") -> int:
         if isinstance(app, CellSource):
             extra.update(robots={n: vars(x) for n, x in app.summaries.items()},
                          frames=frame_counts(app))
+            for robot, rec in app.unfinished():   # (the items still pending)
+                telemetry[0].cell_item(robot, rec)
         telemetry[0].close(end, error, extra=extra)
     if args.report:
         write_json_atomic(args.report, run_report(ctl, changes, transport, code, end,

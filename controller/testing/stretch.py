@@ -17,7 +17,8 @@ Stretched, absent values from their defaults (so that no idle-machine window is 
 - PDO ``event_deadline`` (a TPDO's receive time-out);
 - the SDO writes of the drives' time windows: 6066h (following error time-out) and 6068h
   (position window time);
-- ``.tracking``: ``conveyor.silent_cycles`` (the encoder's and each drive's silence),
+- ``.tracking``: ``conveyor.silent_cycles`` (the encoder's and each drive's silence; a
+  cell's: every ``cell.encoders.*.silent_cycles``),
   ``cycle.max_missed_in_row`` (kept 0 = never), every ``timeouts`` ``*_s`` (boot-up, SDO,
   enable, each stop stage);
 - ``.plc.commander_heartbeat_ms`` (the commander's heartbeat time-out).
@@ -91,10 +92,13 @@ def stretch_mapping(data: dict[str, Any], factor: float) -> dict[str, Any]:
                 w["value"] = min(0xFFFF, round(w["value"] * f))
     tr = d.get(".tracking")
     if isinstance(tr, dict):
-        conveyor = tr.get("conveyor")
-        if isinstance(conveyor, dict):
-            # (5: the parser's default, controller.canopen.config.tracking)
-            conveyor["silent_cycles"] = math.ceil(conveyor.get("silent_cycles", 5) * f)
+        cell = tr.get("cell")
+        encoders = cell.get("encoders") if isinstance(cell, dict) else None
+        for conveyor in [tr.get("conveyor")] + (list(encoders.values())
+                                                if isinstance(encoders, dict) else []):
+            if isinstance(conveyor, dict):
+                # (5: the parser's default, controller.canopen.config.tracking)
+                conveyor["silent_cycles"] = math.ceil(conveyor.get("silent_cycles", 5) * f)
         cycle = tr.setdefault("cycle", {})
         cycle["max_missed_in_row"] = math.ceil(cycle.get(
             "max_missed_in_row", _default(TrackingConfig, "max_missed_in_row")) * f)

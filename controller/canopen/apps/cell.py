@@ -430,6 +430,12 @@ class CellSource:
             self.master_values.setdefault(name, []).append(f.source_values())
         self.recorded += 1
 
+    def unfinished(self) -> list[tuple[str, ItemRecord]]:
+        """(robot, record) of every item whose outcome is not final yet (still pending or
+        being tracked when the run ended; ``on_item`` has not had them)."""
+        return [(rc.name, rec) for rc in self.cell.robots for rec in self.records(rc.name)
+                if (rc.name, rec.item_id) not in self._reported]
+
     def records(self, name: str) -> list[ItemRecord]:
         """Robot ``name``'s item records, by item id."""
         if self.run is None:
