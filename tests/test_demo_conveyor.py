@@ -20,11 +20,13 @@ from controller.cli import demo as cmd_demo
 from controller.conveyor import ITEM_MISSED_CODE, LINEAR, ItemStatus, MovingFrame, RobotGroup
 
 
-def _run(demo, extra_trigger=False, max_cycles=8000, watch=None):
+def _run(demo, extra_trigger=False, max_cycles=8000, watch=None, on_world=None):
     cfg = load_config(cmd_demo.DEFAULT_CONFIG)
     demo = replace(cfg.demo, **demo)
     app = PickPlace(demo)
     with SimWorld(cfg) as world:
+        if on_world is not None:
+            on_world(world)
         ctl = Controller(cfg, world.transport, app)
         ctl.boot()
         ctl.start()
@@ -103,6 +105,37 @@ def test_item_passing_the_window_while_the_robot_is_busy_is_missed_30238():
     ev = [e for e in ctl.events if e.kind == "item_missed"]
     assert len(ev) == 1 and "30238" in ev[0].detail
     assert len(app.robot.buffer) == 0
+
+
+def test_an_item_the_robot_leaves_on_a_tracker_error_is_missed_and_the_next_ones_placed():
+    """One encoder sample a period stale while the robot synchronises with item 0 (what a
+    late TPDO taken for the next SYNC's did in real time): the estimate's acceleration
+    exceeds the frame's AccelerationMax, the link leaves the item (tracker error).  Before,
+    the sequence waited in APPROACH for a synchronisation that never came: items 0, 1 and 2
+    pending for 8000 cycles.  Now item 0 is missed, saying why, and 1 and 2 are placed."""
+    enc = []
+    glitch = {"cycle": None}
+
+    def watch(ctl, app):
+        r = app.robot
+        if glitch["cycle"] is None and app.stage is Step.APPROACH and r.links \
+                and r.links[0].tracker.state.name == "SYNCING":
+            glitch["cycle"] = ctl.k
+            # the next SYNC's sample reads the belt one period back (300 mm/s x 2 ms)
+            enc[0]._offset -= round(300.0 * ctl.cfg.period_s * 40.96)
+        elif glitch["cycle"] == ctl.k - 1:
+            enc[0]._offset += round(300.0 * ctl.cfg.period_s * 40.96)
+
+    ctl, app = _run({"items": 3}, watch=watch,
+                    on_world=lambda w: enc.append(w.device(w.cfg.tracking.conveyor.node)))
+    items = app.items()
+    assert glitch["cycle"] is not None
+    assert [i.outcome for i in items] == ["missed", "placed", "placed"]
+    assert items[0].reason == "tracker error MASTER_ACCELERATION"
+    assert app.robot.records[items[0].entry_id].error == "MASTER_ACCELERATION"
+    ev = [e for e in ctl.events if e.kind == "item_missed"]
+    assert len(ev) == 1 and "item 0" in ev[0].detail and "MASTER_ACCELERATION" in ev[0].detail
+    assert ctl.source_done and ctl.k < 8000
 
 
 def test_demo_telemetry_has_the_model_item_records(tmp_path, capsys):

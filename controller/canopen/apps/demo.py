@@ -24,7 +24,9 @@ context, it returns the setpoint, its typed status and its events) runs a
   APPROACH (IMFS 1 and the move done) -> FOLLOW ``pick.dwell_s`` -> ``NEXTITEM``,
   ``MasterFrame = none`` (de-sync on the path), ``MOVES`` to the place -> PLACE (move done,
   frame detached, dwell ``place.dwell_s``) -> WAIT.  Items that pass the window while the
-  robot places are missed (30238) when the robot takes them from the buffer;
+  robot places are missed (30238) when the robot takes them from the buffer; an item the
+  robot's link leaves on a tracker error (the master over the frame's VelocityMax /
+  AccelerationMax) while it approaches or follows it is missed, and the sequence goes on;
 - output: the robot group's setpoint (world TCP; angle about z) is the master of the
   source's own pass-through :class:`~controller.tracking.Tracker`, engaged once (absolute) at
   the start and SYNCED from then on, so it passes the setpoint through unchanged to the kinematics and
@@ -476,6 +478,8 @@ class PickPlace:
                 self._events.append(SourceEvent(
                     "demo", MasterEventKind.ITEM_MISSED,
                     f"item {item.index} missed ({ITEM_MISSED_CODE}): {ev.message}", level=20))
+            elif ev.kind == EventKind.TRACKER_ERROR and ev_item is not None:
+                self._left_on_error(ev_item, ev.message)
         loc = out.setpoint
         axis, ang = q_to_axis_angle(loc.ori)
         if axis[2] < 0:
@@ -490,6 +494,19 @@ class PickPlace:
         m = MotionState(vec3(loc.pos), vel, acc, ang, ang_vel, (ang_vel - prev.ang_vel) / T)
         self._prev = m
         return m
+
+    def _left_on_error(self, item: Item, error: str) -> None:
+        """The robot's link left ``item`` on a tracker error (a master over the frame's
+        VelocityMax / AccelerationMax, ...): being approached or followed, it will never be
+        synchronised again, so it is missed and the sequence goes on (else it waited for it
+        for ever)."""
+        if item is not self.current or self.stage not in (Step.APPROACH, Step.FOLLOW):
+            return
+        self._finish_item(item, Outcome.MISSED, f"tracker error {error}")
+        self.stage = Step.WAIT
+        self._events.append(SourceEvent(
+            "demo", MasterEventKind.ITEM_MISSED,
+            f"item {item.index} missed: the robot left it (tracker error {error})", level=20))
 
     def _make_room(self, ctx: CycleContext, item: Item) -> bool:
         """The robot's trigger buffer is full: drop the new item (``drop_newest``) or the
