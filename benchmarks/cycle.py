@@ -19,6 +19,11 @@ the controller's clock (``time.perf_counter_ns``):
 Next to it, in the same run, the timing floor of this machine: a bare loop on the same wait
 (``RealtimeTransport.run_until`` on an idle virtual bus) with ~20 us of work per cycle.
 
+The workload sets ``master.sync_window`` (1007h) to the compute point, T/2: a SYNC the device
+thread serves later than that gets no answer (the controller coasts over the missing
+sample), as a CANopen node discards its synchronous TPDOs after the window; the devices
+sample at the SYNC's time on the bus, not when the thread gets to it.
+
 The bus-load check is off (a virtual bus has no bit time): 4 drives at 1 ms need ~110 % of
 a 1 Mbit/s bus, which a real bus cannot carry; the load is printed for reference.
 
@@ -100,8 +105,12 @@ def bare_loop(period_ns: int, seconds: float, spin_ns: int, work_ns: int = 20_00
 
 
 def _workload(period_us: int, seconds: float, tmp: Path):
+    # the synchronous window (1007h) at the compute point (compute_at 0.5): a device thread
+    # that serves a SYNC later than the controller waits for its answer sends none (the
+    # controller coasts over it), instead of an answer taken for the next SYNC's
     text = DEMO.read_text().replace("../../eds/", str(ROOT / "eds") + "/").replace(
-        "  sync_period: 2000 ", f"  sync_period: {period_us} ").replace(
+        "  sync_period: 2000 ",
+        f"  sync_window: {period_us // 2}\n  sync_period: {period_us} ").replace(
         "    silent_cycles: 5", "    silent_cycles: 25")
     cfg = load_config(bus_yml(tmp, text=text, name=f"bench-{period_us}.yml"))
     # items every 2 s (pitch 600-700 mm at 300 mm/s): the gantry keeps up with them

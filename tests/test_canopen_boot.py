@@ -54,6 +54,25 @@ def test_boot_configures_every_node(stepped_controller, cfg):
     assert [e.kind for e in ctl.events] == ["boot"] * 3
 
 
+def test_sync_window_is_written_to_1007h_of_every_sync_consumer(stepped_controller, tmp_path,
+                                                               cfg):
+    """``master.sync_window`` [us] -> 1007h of the encoder and the drives (dcfgen writes it
+    into the master's DCF only); 0, the default, writes nothing: the nodes keep theirs."""
+    assert not any(w.index == 0x1007 for n in cfg.slaves for w in cantrack_sdos(cfg, n))
+    text = bus_yml_text().replace("  sync_overflow: 16", "  sync_window: 1000\n"
+                                                          "  sync_overflow: 16")
+    cfg_w = load_config(bus_yml(tmp_path, text=text, name="window.yml"))
+    assert cfg_w.master.sync_window_us == 1000
+    world, ctl = stepped_controller(cfg_w)
+    ctl.boot()
+    for name in ("encoder", "x", "y"):
+        dev = world.device(name)
+        assert dev.load(0x1007) == 1000 and dev.sync_window_ns == 1_000_000
+    world0, ctl0 = stepped_controller(cfg)
+    ctl0.boot()
+    assert world0.device("x").load(0x1007) == 0 and world0.device("x").sync_window_ns == 0
+
+
 def test_missing_node(stepped_controller, cfg):
     world, ctl = stepped_controller(cfg, present=["encoder", "x"])
     with pytest.raises(BootError, match=r"^node 12 \(y\): no boot-up message within 0.1 s "

@@ -156,6 +156,62 @@ def test_encoder_tpdo_on_sync_wraps_at_6002h(bus):
     assert len(m.of(0x18A)) == 11
 
 
+def _late_sync(world, m, late_ns: int) -> int:
+    """A SYNC that was on the bus at t (its message time) and is served ``late_ns`` later
+    (what a device thread waiting for the interpreter does); returns t."""
+    import can
+    clock = world.clock
+    t = clock.now_ns()
+    clock.advance_to(t + late_ns)
+    raw = world.world.new_bus()
+    try:
+        raw.send(can.Message(arbitration_id=0x80, data=b"", is_extended_id=False,
+                             timestamp=t * 1e-9))
+    finally:
+        raw.shutdown()
+    m.run(0)
+    return t
+
+
+@pytest.mark.parametrize("window_us, sent", [(1000, False), (2000, True), (0, True)])
+def test_a_sync_served_late_is_sampled_at_its_bus_time_and_kept_to_1007h(bus, window_us,
+                                                                         sent):
+    """With the port's frame time (the real-time device thread's), the encoder latches
+    6004h at the SYNC's time on the bus, not when its host got to the frame; served after
+    the synchronous window (1007h) it sends no synchronous TPDO (CiA 301; CANopenNode
+    discards them): a late answer must not be taken for the next SYNC's."""
+    world, m = bus
+    enc = world.device("encoder")
+    world.rack.port.frame_time = True
+    m.nmt(0x01, 10)
+    m.sdo(10).download(0x1007, 0, struct.pack("<I", window_us))
+    m.sync()
+    n = len(m.of(0x18A))
+    t = _late_sync(world, m, 1_500_000)
+    at_sync = enc.true_counts(t) % 16777216
+    assert enc.true_counts(t + 1_500_000) - enc.true_counts(t) >= 18  # 1.5 ms: 18.4 counts
+    assert enc.load(0x6004) == at_sync
+    frames = m.of(0x18A)[n:]
+    if sent:
+        assert [struct.unpack("<Ih", d)[0] for d in frames] == [at_sync]
+        assert enc.sync_tpdos_discarded == 0
+    else:
+        assert frames == [] and enc.sync_tpdos_discarded == 1
+    # served at once, the next SYNC is answered (the window counts from each SYNC)
+    m.sync()
+    assert len(m.of(0x18A)) == n + len(frames) + 1
+
+
+def test_without_frame_time_a_device_samples_when_it_serves_the_sync(bus):
+    """The default port (stepped worlds, a device host on a real bus): the handling time."""
+    world, m = bus
+    enc = world.device("encoder")
+    m.nmt(0x01, 10)
+    m.sync()
+    t = _late_sync(world, m, 1_500_000)
+    assert enc.load(0x6004) == enc.true_counts(t + 1_500_000) % 16777216
+
+
 def test_402_enable_sequence(bus):
     world, m = bus
     configure_csp(m)

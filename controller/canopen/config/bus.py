@@ -80,6 +80,9 @@ class MasterConfig:
     node_id: int
     baudrate_kbit: int = 1000
     sync_period_us: int = 2000
+    #: synchronous window length [us] (1007h), written to every SYNC consumer that has
+    #: 1007h (0: not written): a node that serves a SYNC later sends none of its
+    #: synchronous TPDOs (docs/spec/tools.md#1)
     sync_window_us: int = 0
     #: SYNC counter overflow (1019h): 0 = SYNC without counter, else 2..240
     sync_overflow: int = 0

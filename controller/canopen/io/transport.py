@@ -49,11 +49,22 @@ def virtual_bus(channel: str) -> can.BusABC:
 
 
 class Port:
-    """A participant's access to its bus: stamped sends and dispatch by COB-ID."""
+    """A participant's access to its bus: stamped sends and dispatch by COB-ID.
 
-    def __init__(self, bus: can.BusABC, clock: Clock) -> None:
+    Receivers get the controller time of the frame: when it is handled (default), or with
+    ``frame_time`` when it was sent, from its message time (a simulated bus whose senders
+    stamp their frames with the same clock: :func:`virtual_bus` keeps the senders' stamps);
+    a host that serves frames late (a device thread waiting for the interpreter) then still
+    knows when each was on the bus.  A stamp outside the last :data:`FRAME_TIME_MAX_NS`
+    (none, another time base) falls back to the handling time."""
+
+    #: how far back a frame's own time is believed [ns]
+    FRAME_TIME_MAX_NS = 1_000_000_000
+
+    def __init__(self, bus: can.BusABC, clock: Clock, frame_time: bool = False) -> None:
         self.bus = bus
         self.clock = clock
+        self.frame_time = frame_time
         self.subscribers: dict[int, list[Callback]] = {}
         #: receivers of error frames (python-can ``is_error_frame``: SocketCAN's CAN_ERR_*)
         self.error_subscribers: list[Callable[[can.Message], None]] = []
@@ -96,6 +107,10 @@ class Port:
         callbacks = self.subscribers.get(can_id)
         if callbacks:
             t = self.clock.now_ns()
+            if self.frame_time:
+                sent = round((msg.timestamp - self.clock.epoch_s) * 1e9)
+                if 0 <= t - sent <= self.FRAME_TIME_MAX_NS:
+                    t = sent
             data = bytes(msg.data)  # (immutable: one copy for every subscriber)
             if len(callbacks) == 1:
                 callbacks[0](can_id, data, t)

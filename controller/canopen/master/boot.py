@@ -123,6 +123,13 @@ def cantrack_sdos(cfg: ControllerConfig, name: str) -> list[SdoValue]:
     if sync_consumer(od) and odm.variable(od, 0x1019) is not None and \
             not any(w.index == 0x1019 for w in cfg.slaves[name].sdo):
         out.append(SdoValue(0x1019, 0, cfg.master.sync_overflow, 1, "cantrack"))
+    # 1007h from ``sync_window`` (0: not written, the node keeps its own): a node that
+    # serves a SYNC after the window sends none of its synchronous TPDOs (CiA 301), so a
+    # late answer is missing, never taken for the next SYNC's
+    if cfg.master.sync_window_us and sync_consumer(od) and \
+            odm.variable(od, 0x1007) is not None and \
+            not any(w.index == 0x1007 for w in cfg.slaves[name].sdo):
+        out.append(SdoValue(0x1007, 0, cfg.master.sync_window_us, 4, "cantrack"))
     t = cfg.tracking
     if t is None or name not in t.drive_nodes:
         return out

@@ -37,6 +37,8 @@ What python canopen gives and what is added here, and why:
   254/255 at once; TPDOs of type 0 go out at a SYNC when a mapped object changed since the
   last one, 1-240 at every n-th SYNC (from the SYNC counter = 18xxh:6 when both are set),
   254/255 on a change (inhibit time 18xxh:3 respected) and on the event timer 18xxh:5;
+  the synchronous ones only within the synchronous window 1007h after their SYNC (served
+  later: discarded, as CANopenNode does); a device samples at the SYNC's bus time;
 - EMCY producer with 1001h/1003h bookkeeping.
 
 Subclasses implement the hooks at the end of :class:`SlaveEngine`.
@@ -261,6 +263,10 @@ class SlaveEngine:
         self.emcy_sent: list[tuple[int, int]] = []  # (code, ns)
         self.sync_counter: int | None = None
         self.sync_cob_id = sync_cob_id
+        #: 1007h synchronous window length [ns] (0: none; read with the PDOs)
+        self.sync_window_ns = 0
+        #: synchronous TPDOs not sent because their SYNC was served after the window
+        self.sync_tpdos_discarded = 0
         bus.subscribe(0x600 + self.node_id, self._on_sdo_frame)
         bus.subscribe(0x000, self._on_nmt)
         if sync_cob_id is not None:
@@ -448,7 +454,7 @@ class SlaveEngine:
             raise SdoAbortError(ABORT_PDO_MAPPING)
 
     def _after_comm_write(self, index: int, sub: int, value: Any) -> None:
-        if 0x1400 <= index <= 0x1BFF:
+        if 0x1400 <= index <= 0x1BFF or index == 0x1007:
             self._pdo_dirty = True
         elif index == 0x1017:
             ms = int(value)
@@ -630,6 +636,7 @@ class SlaveEngine:
                             prev.last_sent_ns, prev.last_data, prev.sent
                         p.sync_count, p.started = prev.sync_count, prev.started
                     self.tpdos.append(p)
+        self.sync_window_ns = int(self.load(0x1007, 0)) * 1000 if self.has(0x1007) else 0
         self._pdo_dirty = False
 
     def _read_pdo(self, kind: str, comm: int) -> PdoChannel | None:
@@ -702,7 +709,7 @@ class SlaveEngine:
         if not self._sync_length_ok(len(data)):
             self.sync_counter = data[0] if data else None
             return
-        self.process_sync(data[0] if data else None)
+        self.process_sync(data[0] if data else None, t)
 
     def _sync_length_ok(self, n: int) -> bool:
         """CiA 301: with 1019h > 0 a SYNC carries the counter (1 byte), else none; a consumer
@@ -718,22 +725,34 @@ class SlaveEngine:
             self.set_nmt(Nmt.PRE_OPERATIONAL)
         return False
 
-    def process_sync(self, counter: int | None = None) -> None:
+    def process_sync(self, counter: int | None = None, t_ns: int | None = None) -> None:
         """A SYNC (received, or the host's own): synchronous RPDOs into the OD, the
-        device's :meth:`on_sync`, then the synchronous and event TPDOs."""
+        device's :meth:`on_sync`, then the synchronous and event TPDOs.
+
+        ``t_ns``: when the SYNC was on the bus (the bus port's frame time; default now).
+        The device samples at that time, as hardware latches its inputs at the SYNC's
+        reception, even when its host serves the frame later (a simulated device in a
+        thread waiting for the interpreter).  Served after the synchronous window (1007h,
+        CiA 301: synchronous PDOs only within it after the SYNC) the synchronous TPDOs are
+        discarded, as CANopenNode clears its pending synchronous TPDOs when the window has
+        passed: a late answer is never taken for the next SYNC's (counted in
+        ``sync_tpdos_discarded``)."""
         if not self.listening() or self.nmt_state in (Nmt.INITIALISING, Nmt.STOPPED):
             return
         if self._pdo_dirty:
             self._rebuild_pdos()
         self.sync_counter = counter
         now = self.clock.now_ns()
+        t_sync = now if t_ns is None or t_ns > now else t_ns
+        window = self.sync_window_ns
+        outside = window > 0 and now - t_sync > window
         operational = self.nmt_state is Nmt.OPERATIONAL
         if operational:
             for pdo in self.rpdos.values():
                 if pdo.pending is not None:
                     data, pdo.pending = pdo.pending, None
                     self._apply_rpdo(pdo, data)
-        self.on_sync(now)
+        self.on_sync(t_sync)
         if not operational:
             self._changed.clear()
             return
@@ -750,9 +769,16 @@ class SlaveEngine:
                 pdo.started = True
                 if counter is not None and t > 0:
                     pdo.sync_count = 0
-                    self._send_tpdo(pdo, self.tpdo_data(pdo), now)
+                    if outside:
+                        self.sync_tpdos_discarded += 1
+                    else:
+                        self._send_tpdo(pdo, self.tpdo_data(pdo), now)
                     continue
             if t == 0:  # acyclic synchronous: at the SYNC after a change
+                if outside:  # (still to send: at the next SYNC served in its window)
+                    if pdo.dirty or pdo.last_data is None:
+                        self.sync_tpdos_discarded += 1
+                    continue
                 if pdo.dirty or pdo.last_data is None:
                     data = self.tpdo_data(pdo)
                     if data != pdo.last_data:
@@ -762,7 +788,10 @@ class SlaveEngine:
             pdo.sync_count += 1
             if pdo.sync_count >= t:
                 pdo.sync_count = 0
-                self._send_tpdo(pdo, self.tpdo_data(pdo), now)
+                if outside:
+                    self.sync_tpdos_discarded += 1
+                else:
+                    self._send_tpdo(pdo, self.tpdo_data(pdo), now)
         self.service_event_pdos(now)
 
     def service_event_pdos(self, now: int) -> None:

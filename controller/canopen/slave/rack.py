@@ -30,10 +30,12 @@ if TYPE_CHECKING:
 class DeviceRack:
     """Endpoint holding the simulated devices (``handle``/``next_timer_ns``/``on_timer``)."""
 
-    def __init__(self, bus: can.BusABC, clock: Clock) -> None:
+    def __init__(self, bus: can.BusABC, clock: Clock, frame_time: bool = False) -> None:
         self.bus = bus
         self.clock = clock
-        self.port = Port(bus, clock)  # frames stamped with the clock, dispatched by COB-ID
+        # frames stamped with the clock, dispatched by COB-ID; ``frame_time``: the devices
+        # get each frame's bus time (a SYNC served late is still sampled at its time)
+        self.port = Port(bus, clock, frame_time)
         self.devices: dict[str, SimNode] = {}
 
     def add(self, device: SimNode) -> SimNode:
@@ -58,13 +60,14 @@ class DeviceRack:
 
     @classmethod
     def from_config(cls, cfg: ControllerConfig, bus: can.BusABC, clock: Clock,
-                    present: Iterable[str] | None = None) -> DeviceRack:
+                    present: Iterable[str] | None = None,
+                    frame_time: bool = False) -> DeviceRack:
         """One simulated device per slave of ``cfg`` (by the EDS's device profile).
 
         ``present``: the slave names to simulate (default all); parameters from the
-        ``.simulation`` section (defaults otherwise).
+        ``.simulation`` section (defaults otherwise); ``frame_time``: see :class:`Port`.
         """
-        rack = cls(bus, clock)
+        rack = cls(bus, clock, frame_time)
         sim = cfg.simulation
         names = list(cfg.slaves) if present is None else list(present)
         boot_delay = int((sim.boot_delay_s if sim is not None else 0.005) * 1e9)

@@ -115,8 +115,11 @@ class SimWorld:
         if realtime and not inline:
             self.clock = RealtimeClock()
             self.world = None
+            # frame_time: the device thread serves a SYNC when the interpreter lets it,
+            # up to milliseconds late on a busy machine; the devices sample at the SYNC's
+            # bus time and keep to the synchronous window (1007h) from it
             self.rack = DeviceRack.from_config(cfg, virtual_bus(self.channel), self.clock,
-                                               present)
+                                               present, frame_time=True)
             if bus_log is not None:
                 self._logger = bus_log if isinstance(bus_log, can.Listener) \
                     else can.Logger(str(bus_log))
