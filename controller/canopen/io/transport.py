@@ -338,6 +338,10 @@ class SteppedTransport(PortTransport):
 class RealtimeTransport(PortTransport):
     """The controller's transport on a real bus (or a virtual one shared with threads)."""
 
+    #: frames handled at most by a wait whose deadline has passed (bounded: a flood must
+    #: not hold the late cycle up further)
+    LATE_FRAMES = 256
+
     def __init__(self, bus: can.BusABC, clock: RealtimeClock | None = None,
                  spin_ns: int = SPIN_NS) -> None:
         self.clock = clock if clock is not None else RealtimeClock()
@@ -349,7 +353,12 @@ class RealtimeTransport(PortTransport):
                   precise: bool = False) -> bool:
         """``precise``: poll the last ``spin_ns`` before the deadline (the SYNC); otherwise
         block until a frame or the deadline (waiting for other nodes' answers: a poll would
-        only take the CPU from them)."""
+        only take the CPU from them).
+
+        Called when the deadline has passed already (a late cycle), it still handles the
+        frames received meanwhile (at most :data:`LATE_FRAMES`), as the stepped world does:
+        they arrived before the deadline and belong to the cycle before it, not to the
+        next SYNC's (whose index the caller sets after this wait)."""
         now_ns = self.clock.now_ns
         recv = self.port.bus.recv
         handle = self.port.handle
@@ -359,6 +368,11 @@ class RealtimeTransport(PortTransport):
                 return True
             rest = deadline_ns - now_ns()
             if rest <= 0:
+                for _ in range(self.LATE_FRAMES):
+                    msg = recv(0)
+                    if msg is None:
+                        break
+                    handle(msg)
                 return done() if done is not None else True
             msg = recv((rest - spin) * 1e-9) if rest > spin else recv(0)
             # (a blocking recv(timeout) may return a little after the deadline: the

@@ -1,0 +1,160 @@
+"""The cycle's real-time supervision, deterministically: the start-up budget check, the
+reaction to deadlines missed in a row, and a late cycle's wait.
+
+The cycle's timing figures are taken only on a real-time clock; here a stepped world's clock
+says it is one (``realtime = True``) so that the figures are taken on stepped time, and a
+source that "computes" too long advances that clock itself: every number is exact.  The
+budget check's compute time is the thread's CPU time (``time.thread_time_ns``), so there the
+source burns CPU; CPU time does not depend on how busy the machine is.
+"""
+
+from __future__ import annotations
+
+import time
+
+from controller.canopen.apps.follow import ConveyorFollow
+from controller.canopen.io.transport import RealtimeTransport, virtual_bus
+from controller.canopen.master.cycle import Controller, Phase
+from controller.canopen.master.source import CycleContext, SourceOutput, SourceStart
+from controller.canopen.testing import load
+
+
+class _Slow:
+    """A source that takes ``compute_ns`` of stepped time (``clock``) or, with ``burn``, of
+    this thread's CPU time in each of its cycles ``first`` ... ``first + cycles - 1``."""
+
+    def __init__(self, clock, compute_ns: int, first: int = 0, cycles: int = 10**9,
+                 burn: bool = False) -> None:
+        self.inner = ConveyorFollow(10, None, (420.0, 30.0, 0.0))
+        self.clock = clock
+        self.compute_ns = compute_ns
+        self.first, self.last = first, first + cycles
+        self.burn = burn
+        self.n = 0
+        self.cycles: list[int] = []  # the controller's cycle of each step
+
+    def start(self, start: SourceStart):
+        return self.inner.start(start)
+
+    def step(self, ctx: CycleContext) -> SourceOutput:
+        out = self.inner.step(ctx)
+        self.cycles.append(ctx.cycle)
+        if self.first <= self.n < self.last:
+            if self.burn:
+                t = time.thread_time_ns() + self.compute_ns
+                while time.thread_time_ns() < t:
+                    pass
+            else:
+                self.clock.advance_to(self.clock.now_ns() + self.compute_ns)
+        self.n += 1
+        return out
+
+
+def _controller(stepped_controller, tmp_path, source_of, **kw):
+    cfg = load(tmp_path)
+    world, _ = stepped_controller(cfg)
+    world.clock.realtime = True  # the timing figures are taken (on stepped time)
+    ctl = Controller(cfg, world.transport, source_of(world.clock, cfg), keep_trace=False,
+                     **kw)
+    ctl.boot()
+    ctl.start()
+    return world, ctl
+
+
+def test_deadlines_missed_in_a_row_quick_stop_the_drives(stepped_controller, tmp_path):
+    """Every cycle's compute takes 1.2 periods from the 50th tracking cycle on: the RPDOs go
+    out after the next SYNC's deadline; at ``max_missed_in_row`` (25) the controller
+    quick-stops, saying why, and ends with exit 3 (a fault handled)."""
+    world, ctl = _controller(stepped_controller, tmp_path,
+                             lambda clock, cfg: _Slow(clock, round(1.2 * cfg.period_ns), 50))
+    ctl.run(max_cycles=1000, realtime_gc=False)
+    ev = [e for e in ctl.events if e.kind == "deadlines_missed"]
+    assert len(ev) == 1
+    assert ev[0].detail.startswith("25 SYNC deadlines missed in a row")
+    assert ev[0].reaction == "quick stop of all drives"
+    assert ctl.timing.missed == ctl.timing.missed_run.longest >= 25
+    assert ctl.phase is Phase.STOPPED and ctl.exit_code() == 3
+    # the quick stop came with the 25th miss: the source's cycles 50 ... 74 were slow
+    assert ev[0].cycle == ctl.source.cycles[74]
+
+
+def test_a_streak_shorter_than_the_limit_is_counted_not_stopped(stepped_controller,
+                                                                tmp_path):
+    """24 slow cycles, then the compute fits again: the streak ends one short of the
+    limit; the misses are counted, nothing stops."""
+    world, ctl = _controller(
+        stepped_controller, tmp_path,
+        lambda clock, cfg: _Slow(clock, round(1.2 * cfg.period_ns), 50, cycles=24))
+    ctl.run(max_cycles=400, realtime_gc=False)
+    assert not [e for e in ctl.events if e.kind == "deadlines_missed"]
+    assert ctl.timing.missed == 24 and ctl.timing.missed_run.longest == 24
+    assert ctl.failure is None and ctl.exit_code() == 0
+
+
+class _ShortCheck(Controller):
+    BUDGET_CHECK_S = 0.1  # 50 cycles at 2 ms
+
+
+def test_startup_check_warns_when_compute_p99_is_over_half_the_period(stepped_controller,
+                                                                      tmp_path, caplog):
+    """Compute CPU of 1.2 ms in each 2 ms cycle (60 %) over the first 0.1 s of tracking:
+    one warning "cycle_budget" naming the p99 and the share; the run goes on."""
+    cfg = load(tmp_path)
+    world, _ = stepped_controller(cfg)
+    world.clock.realtime = True
+    ctl = _ShortCheck(cfg, world.transport, _Slow(world.clock, 1_200_000, burn=True),
+                      keep_trace=False)
+    ctl.boot()
+    ctl.start()
+    ctl.run(max_cycles=120, realtime_gc=False)
+    ev = [e for e in ctl.events if e.kind == "cycle_budget"]
+    assert len(ev) == 1, [str(e) for e in ctl.events]
+    share = int(ev[0].detail.split(" us = ")[1].split(" %")[0])
+    assert 60 <= share < 150 and "over the first 0.1 s (> 50 %)" in ev[0].detail
+    assert ev[0].reaction == ""  # a warning (logged at WARNING), no reaction
+    assert [r.levelname for r in caplog.records if "cycle_budget" in r.getMessage()] \
+        == ["WARNING"]
+    # after the first 0.1 s of tracking (50 cycles, from the one that started the source,
+    # the cycle before its first step), and never again
+    assert ev[0].cycle == ctl.source.cycles[0] - 1 + 49
+    assert ctl.failure is None and ctl.timing.startup is None  # checked once
+
+
+def test_startup_check_is_silent_with_headroom(stepped_controller, tmp_path):
+    """The plain source's compute (tens of us of CPU) in the same 2 ms cycle: no warning."""
+    cfg = load(tmp_path)
+    world, _ = stepped_controller(cfg)
+    world.clock.realtime = True
+    ctl = _ShortCheck(cfg, world.transport, _Slow(world.clock, 0, burn=True),
+                      keep_trace=False)
+    ctl.boot()
+    ctl.start()
+    ctl.run(max_cycles=120, realtime_gc=False)
+    assert not [e for e in ctl.events if e.kind == "cycle_budget"]
+    assert ctl.timing.startup is None  # the check ran
+
+
+def test_a_late_wait_still_handles_the_frames_received_before_its_deadline():
+    """A cycle that starts after its deadline (the controller was held up) must still take
+    the frames that came in meanwhile, before it sets the next SYNC's index: else a TPDO
+    answering the last SYNC was taken for the next one's.  Cue: the frame is in the receive
+    queue before the wait (a virtual bus delivers on send)."""
+    channel = f"late-wait-{time.perf_counter_ns()}"
+    transport = RealtimeTransport(virtual_bus(channel))
+    peer = virtual_bus(channel)
+    got = []
+    try:
+        transport.subscribe(0x18A, lambda can_id, data, t: got.append(bytes(data)))
+        import can
+        peer.send(can.Message(arbitration_id=0x18A, data=b"\x01\x02\x03\x04",
+                              is_extended_id=False))
+        past = transport.clock.now_ns() - 1_000_000
+        assert transport.run_until(past, precise=True) is True
+        assert got == [b"\x01\x02\x03\x04"]
+        # with a completion test: the frame is handled, then the test is asked again
+        peer.send(can.Message(arbitration_id=0x18A, data=b"\x05", is_extended_id=False))
+        assert transport.run_until(past, lambda: len(got) == 2) is True
+        assert got[-1] == b"\x05"
+    finally:
+        peer.shutdown()
+        transport.close()
