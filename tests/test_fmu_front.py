@@ -118,3 +118,94 @@ def test_doctor(tmp_path):
     assert res.returncode == 1
     assert "FAIL ruckig (planner 1): ImportError: ruckig is not installed here; install: " \
            in res.stdout and "pip install 'ruckig>=0.12'" in res.stdout
+
+
+def _state_calls(fmu):
+    return fmu.get_state, fmu.set_state, fmu.free_state
+
+
+def test_shared_block_takes_inputs_from_every_path(fmu_path):
+    """The inputs reach the engine whichever way they were set after initialisation: the
+    front's cache (the shared block the engine reads at doStep), a set that mixes inputs and
+    a tunable (passed through to Python, mirrored into the block), a set of only some inputs
+    (the others keep their values), and FMU states (restored inputs refresh the block).
+    Each path alone delivers the scenario's values, so the outputs are the core's, bit for
+    bit; a stale value in the block would change them."""
+    from controller.fmu.engine import VARIABLES
+    from controller.fmu.runner import core_run, master_values
+    from tests.test_fmu import params_for
+
+    scenario = conveyor_scenario(T, engage_s=0.02, release_s=0.25)
+    n = 320
+    vel_sync = next(row[4] for row in VARIABLES if row[0] == "vel_sync")
+    with FmuTracker(fmu_path, start_values={"planner": 0}, logging_on=False) as fmu:
+        s, vr = fmu.slave, fmu.vr
+        ins, eng = fmu._in_vrs, fmu._engage_vr
+        get_state, set_state, free_state = _state_calls(fmu)
+        reals, ints = [], []
+        for k in range(n):
+            master, engage = scenario(k)
+            vals = master_values(master)
+            path = k % 4
+            if path == 0:  # the cache
+                fmu._set_real(ins, vals)
+            elif path == 1:  # one set with a tunable: passed through
+                fmu._set_real(ins + [vr["vel_sync"]], vals + [vel_sync])
+            elif path == 2:  # half cached, half passed through
+                fmu._set_real(ins[:6], vals[:6])
+                fmu._set_real([vr["vel_sync"]] + ins[6:], [vel_sync] + vals[6:])
+            else:  # a state with these inputs restored over other values
+                fmu._set_real(ins, vals)
+                state = get_state()
+                fmu._set_real(ins, [1e6 + x for x in vals])
+                set_state(state)
+                free_state(state)
+            s.setBoolean(eng, [engage])  # cached: the engine takes every input from the block
+            s.doStep(currentCommunicationPoint=k * T, communicationStepSize=T)
+            r, i = fmu.outputs()
+            reals.append(r)
+            ints.append(i)
+        assert fmu._get_real(ins) == master_values(scenario(n - 1)[0])
+    ref = core_run(params_for(planner=0), scenario, n)
+    assert reals == ref.reals and ints == ref.ints
+    assert {row[1] for row in ints} == {0, 1, 3}  # off, approaching, de-syncing
+
+
+def test_private_value_references_are_refused(fmu_path):
+    """The front's private value references (bulk transfers, the shared block's address)
+    are not the importer's: a set or get of one is an error naming it, never reaches
+    Python, and the instance goes on."""
+    from controller.fmu.engine import BULK_BASE, IO_VR
+
+    with FmuTracker(fmu_path, start_values={"planner": 0}, logging_on=False) as fmu:
+        fmu.run(conveyor_scenario(T), 3, T)
+        for call, args in ((fmu._set_real, ([IO_VR], [123.0])),
+                           (fmu._set_real, ([fmu.vr["master_x"], BULK_BASE], [1.0, 2.0])),
+                           (fmu._get_real, ([BULK_BASE + fmu.vr["x"]],))):
+            with pytest.raises(FMICallException):
+                call(*args)
+        assert [m[0] for m in fmu.messages] == [3, 3, 3]
+        assert f"valueReference {IO_VR} is not a variable of" in fmu.messages[0][2]
+        assert f"valueReference {BULK_BASE} is not a variable of" in fmu.messages[1][2]
+        got = fmu.run(conveyor_scenario(T), 5, T, first_step=3)
+    assert len(got.reals) == 5
+
+
+def test_reset_keeps_the_shared_block(fmu_path):
+    """fmiXReset makes a new Python instance: the front hands it the block again, so the
+    run after the reset is the first one again (FMI 2 and FMI 3)."""
+    scenario = conveyor_scenario(T, engage_s=0.02, release_s=0.15)
+    with FmuTracker(fmu_path, start_values={"planner": 0}, logging_on=False) as fmu:
+        first = fmu.run(scenario, 200, T)
+        fmu.slave.reset()
+        if fmu.fmi3:
+            fmu.slave.enterInitializationMode(startTime=0.0)
+        else:
+            fmu.slave.setupExperiment(startTime=0.0)
+            fmu.slave.enterInitializationMode()
+        fmu.set({"planner": 0})
+        fmu.slave.exitInitializationMode()
+        fmu.time = 0.0
+        again = fmu.run(scenario, 200, T)
+    assert again.reals == first.reals and again.ints == first.ints
+    assert {row[1] for row in first.ints} == {0, 1, 3}

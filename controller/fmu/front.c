@@ -23,19 +23,28 @@
  *    Fatal (pythonfmu frees the instance twice then);
  * 5. FMI 3: passes fmi3EnterInitializationMode's startTime to the Python part (pythonfmu3 does
  *    not) by setting the independent variable `time` (VR_TIME) just before it.
- * 6. caches the inputs and outputs (the trackers: N_IN, N_OUT > 0): after initialisation,
- *    setting inputs only stores them and getting outputs reads a copy, so a co-simulation
- *    step costs three calls into Python instead of one per set/get call: before a step (or
- *    any other call) the set inputs go to Python in one fmiXSetReal/SetFloat64 of the
- *    private value references BULK_BASE + vr ("vr, as a float", see engine.BULK_BASE), the
- *    first output read after a step fetches all outputs in one such get.  The values are
- *    the same (doubles both ways; the integer outputs fit exactly).
+ * 6. shares a block of doubles with the Python engine of the trackers (N_IN, N_OUT > 0;
+ *    engine.IO_VR and the IO_* next to it): its address goes to Python once, at
+ *    instantiation, as a set of the private value reference IO_VR.  After initialisation
+ *    setting inputs writes them into the block and getting outputs reads them from it, in
+ *    C; doStep is the only call into Python: the engine takes the inputs from the block
+ *    (when some were set) and writes the outputs back.  The block always holds Python's
+ *    current inputs: a set the block does not take (inputs mixed with parameters) goes to
+ *    Python and is copied into the block too, and after exitInitializationMode and
+ *    SetFMUState the front reads the inputs back from Python.  Before any call other than
+ *    doStep the inputs set since Python last took them go to Python in one bulk
+ *    fmiXSetReal/SetFloat64 of the private references BULK_BASE + vr ("vr, as a float",
+ *    engine.BULK_BASE), and outputs Python did not write (a refused step) are fetched in one
+ *    bulk get, so FMU states and pass-through gets see every value.  The values are the same
+ *    (doubles both ways; the integer outputs fit exactly).  The importer's own references at
+ *    or above BULK_BASE are refused.
  * Every other FMI function jumps straight into the wrapper (an x86_64 trampoline, no cost).
  *
  * Compile-time definitions (set by the build): FMI_VERSION (2 or 3), MODEL (model
  * identifier), REAL_LIBRARY (file name of the wrapper), LIBPYTHON_BUILD (path), PY_MINOR
- * (X of 3.X of the building Python), VR_TIME (FMI 3), BULK_BASE, N_IN, IN_VRS, IN_TYPES,
- * N_OUT, OUT_VRS, OUT_TYPES (the cached variables: value references and types r/i/b).
+ * (X of 3.X of the building Python), VR_TIME (FMI 3), BULK_BASE, IO_VR, IO_SIZE_PY (the
+ * block's size in the engine, checked), N_IN, IN_VRS, IN_TYPES, N_OUT, OUT_VRS, OUT_TYPES
+ * (the shared variables: value references and types r/i/b).
  */
 #define _GNU_SOURCE
 #include <dlfcn.h>
@@ -43,11 +52,12 @@
 #include <pthread.h>
 #include <stdarg.h>
 #include <stdio.h>
+#include <stdint.h>
 #include <stdlib.h>
 #include <string.h>
 #include <unistd.h>
 
-#ifndef N_IN /* no variable cache (CanConveyor) */
+#ifndef N_IN /* no shared variables (CanConveyor) */
 #define N_IN 0
 #define IN_VRS {0}
 #define IN_TYPES ""
@@ -55,6 +65,17 @@
 #define OUT_VRS {0}
 #define OUT_TYPES ""
 #define BULK_BASE 0
+#define IO_VR 0
+#endif
+/* the shared block (engine.IO_VR and the IO_* next to it): [IO_PULL] 1.0 when Python is to take the inputs,
+   [IO_IN..) the inputs, [IO_WRITTEN] 1.0 once Python wrote the outputs, [IO_OUT..) them */
+#define IO_PULL 0
+#define IO_IN 1
+#define IO_WRITTEN (IO_IN + N_IN)
+#define IO_OUT (IO_WRITTEN + 1)
+#define IO_SIZE (IO_OUT + N_OUT)
+#if defined(IO_SIZE_PY) && IO_SIZE_PY != IO_SIZE
+#error "the shared block's layout differs from engine.IO_VR and the IO_* next to it"
 #endif
 #define EXPORT __attribute__((visibility("default")))
 #define STATUS_WARNING 1
@@ -117,14 +138,16 @@ typedef struct Instance {
     char *name;
     void *env;           /* the importer's environment (FMI 2: componentEnvironment) */
     void *importer_logger;
-    /* the input/output cache (see "variable cache" below) */
+    /* the shared variables (see 6. above) */
     int io_on;           /* after a successful exitInitializationMode */
     int terminated;      /* after fmiXTerminate: setters refused (until reset) */
-    int n_dirty;
-    int out_valid;
+    int n_dirty;         /* inputs set since Python last got them */
+    int out_valid;       /* io[IO_OUT..] holds Python's current outputs */
+    int attached;        /* Python reads and writes io (engine.attach_io) */
     char in_dirty[N_IN + 1];
-    double in_value[N_IN + 1];
-    double out_value[N_OUT + 1];
+    /* the block shared with Python: IO_PULL, the inputs,
+       IO_WRITTEN, the outputs, as doubles */
+    double io[IO_SIZE];
 #if FMI_VERSION == 2
     void *callbacks[5];  /* fmi2CallbackFunctions handed to the wrapper (logger replaced) */
 #endif
@@ -261,7 +284,7 @@ __attribute__((destructor)) static void unload(void) {
     if (real_lib && !loaded_python && !instances) dlclose(real_lib);
 }
 
-/* ---- variable cache (see 6. above) ---------------------------------------------------- */
+/* ---- shared variables (see 6. above) -------------------------------------------------- */
 static const unsigned int in_vrs[N_IN + 1] = IN_VRS;
 static const char in_types[] = IN_TYPES;
 static const unsigned int out_vrs[N_OUT + 1] = OUT_VRS;
@@ -274,6 +297,11 @@ static int position(const unsigned int *vrs, const char *types, int n, unsigned 
     return -1;
 }
 
+static double input_value(size_t i, const double *reals, const int *ints,
+                          const unsigned char *bools) {
+    return reals ? reals[i] : ints ? (double)ints[i] : bools[i] ? 1.0 : 0.0;
+}
+
 /* all of vr[0..n) are cached inputs of ``type``: store the values (doubles), mark them */
 static int cache_inputs(Instance *inst, const unsigned int *vr, size_t n, char type,
                         const double *reals, const int *ints, const unsigned char *bools) {
@@ -282,13 +310,134 @@ static int cache_inputs(Instance *inst, const unsigned int *vr, size_t n, char t
     for (size_t i = 0; i < n; i++)
         if ((pos[i] = position(in_vrs, in_types, N_IN, vr[i], type)) < 0) return 0;
     for (size_t i = 0; i < n; i++) {
-        inst->in_value[pos[i]] = reals ? reals[i] : ints ? (double)ints[i] : bools[i] ? 1.0 : 0.0;
+        inst->io[IO_IN + pos[i]] = input_value(i, reals, ints, bools);
         if (!inst->in_dirty[pos[i]]) {
             inst->in_dirty[pos[i]] = 1;
             inst->n_dirty++;
         }
     }
     return 1;
+}
+
+/* a set the cache does not take (some of vr[0..n) are not cached inputs) goes to Python
+   as it is: the cached inputs among them are copied too, so the shared block stays equal
+   to Python's inputs */
+static void mirror_inputs(Instance *inst, const unsigned int *vr, size_t n, char type,
+                          const double *reals, const int *ints, const unsigned char *bools) {
+    if (!inst->io_on) return;
+    for (size_t i = 0; i < n; i++) {
+        int pos = position(in_vrs, in_types, N_IN, vr[i], type);
+        if (pos < 0) continue;
+        double x = input_value(i, reals, ints, bools);
+        inst->io[IO_IN + pos] = type == 'b' ? x != 0.0 : x; /* FMI 2 Booleans are ints */
+    }
+}
+
+/* an importer's value reference at or above BULK_BASE (the front's private ones): refused,
+   never passed to Python (IO_VR carries an address) */
+static int private_reference(Instance *inst, const unsigned int *vr, size_t n,
+                             const char *function) {
+    if (BULK_BASE == 0) return 0;
+    for (size_t i = 0; i < n; i++) {
+        if (vr[i] < BULK_BASE) continue;
+        char text[256];
+        snprintf(text, sizeof text, "%s: %s refused: valueReference %u is not a variable of "
+                 MODEL, inst->name, function, vr[i]);
+        log_error(inst, text);
+        return 1;
+    }
+    return 0;
+}
+
+/* the wrapper's get/set of doubles (fmi2GetReal/SetReal, fmi3GetFloat64/SetFloat64) */
+static int wrapper_set_doubles(Instance *inst, const unsigned int *vr, size_t n,
+                               const double *values);
+static int wrapper_get_doubles(Instance *inst, const unsigned int *vr, size_t n,
+                               double *values);
+
+/* before a call the cache cannot serve: the set inputs go to Python in one bulk set */
+static int flush(Instance *inst) {
+    if (!inst->n_dirty) return 0;
+    unsigned int vrs[N_IN + 1];
+    double values[N_IN + 1];
+    size_t n = 0;
+    for (int i = 0; i < N_IN; i++) {
+        if (!inst->in_dirty[i]) continue;
+        vrs[n] = BULK_BASE + in_vrs[i];
+        values[n++] = inst->io[IO_IN + i];
+        inst->in_dirty[i] = 0;
+    }
+    inst->n_dirty = 0;
+    return wrapper_set_doubles(inst, vrs, n, values);
+}
+
+/* the outputs from Python in one bulk get (when Python has not written them) */
+static int fetch(Instance *inst) {
+    unsigned int vrs[N_OUT + 1];
+    for (int i = 0; i < N_OUT; i++) vrs[i] = BULK_BASE + out_vrs[i];
+    int status = wrapper_get_doubles(inst, vrs, N_OUT, inst->io + IO_OUT);
+    inst->out_valid = status <= STATUS_WARNING;
+    return status;
+}
+
+/* the inputs from Python into the block (after exitInitializationMode, SetFMUState) */
+static int fetch_inputs(Instance *inst) {
+    unsigned int vrs[N_IN + 1];
+    for (int i = 0; i < N_IN; i++) vrs[i] = BULK_BASE + in_vrs[i];
+    return wrapper_get_doubles(inst, vrs, N_IN, inst->io + IO_IN);
+}
+
+/* give Python the block's address (set IO_VR to it, as a double: exact below 2^53); on
+   success Python reads the inputs from the block and writes the outputs to it at doStep */
+static void attach(Instance *inst) {
+    if (N_IN + N_OUT == 0) return;
+    const unsigned int vr = IO_VR;
+    double address = (double)(uintptr_t)inst->io;
+    if ((uintptr_t)address != (uintptr_t)inst->io) return;
+    inst->worst = 0;
+    inst->attached = wrapper_set_doubles(inst, &vr, 1, &address) == 0 && inst->worst == 0;
+}
+
+/* doStep, the block attached: the step is the only call into Python.  Before it IO_PULL
+   says whether inputs were set since Python last took them; Python takes them (and clears
+   IO_PULL), steps, writes the outputs and IO_WRITTEN.  Inputs Python did not take (it
+   failed before) stay marked: the next other call flushes them. */
+static void before_step(Instance *inst) {
+    inst->io[IO_PULL] = inst->n_dirty ? 1.0 : 0.0;
+    inst->io[IO_WRITTEN] = 0.0;
+    inst->out_valid = 0;
+    inst->worst = 0;
+}
+
+static int after_step(Instance *inst, int status) {
+    if (inst->io[IO_PULL] == 0.0 && inst->n_dirty) {
+        memset(inst->in_dirty, 0, sizeof inst->in_dirty);
+        inst->n_dirty = 0;
+    }
+    inst->io[IO_PULL] = 0.0;
+    inst->out_valid = status <= STATUS_WARNING && inst->io[IO_WRITTEN] != 0.0;
+    return status;
+}
+
+#define STEP(inst, call)                                                                  \
+    do {                                                                                  \
+        if (inst->attached && inst->io_on) {                                              \
+            before_step(inst);                                                            \
+            int stepped = status_of(inst, call);                                          \
+            return after_step(inst, stepped);                                             \
+        }                                                                                 \
+        inst->out_valid = 0;                                                              \
+        PASS_THROUGH(inst, call);                                                         \
+    } while (0)
+
+/* after a call that may have changed Python's inputs and outputs */
+static int resync(Instance *inst, int status) {
+    inst->out_valid = 0;
+    if (inst->io_on && status <= STATUS_WARNING) {
+        int fetched = fetch_inputs(inst);
+        if (fetched > status) status = fetched;
+    }
+    return status;
 }
 
 /* positions of vr[0..n) among the cached outputs of ``type``, or 0 if one is not */
@@ -393,6 +542,7 @@ EXPORT void *fmi2Instantiate(const char *name, int type, const char *guid, const
     inst->next = instances;
     instances = inst;
     pthread_mutex_unlock(&instances_lock);
+    attach(inst);
     return inst->handle;
 }
 
@@ -413,27 +563,14 @@ static void *wrapped(void **slot, const char *name) {
     return *slot;
 }
 
-static int flush(Instance *inst) {
-    if (!inst->n_dirty) return 0;
-    unsigned int vrs[N_IN + 1];
-    double values[N_IN + 1];
-    size_t n = 0;
-    for (int i = 0; i < N_IN; i++) {
-        if (!inst->in_dirty[i]) continue;
-        vrs[n] = BULK_BASE + in_vrs[i];
-        values[n++] = inst->in_value[i];
-        inst->in_dirty[i] = 0;
-    }
-    inst->n_dirty = 0;
-    return WRAPPED(SetReal2, fmi2SetReal)(inst->handle, vrs, n, values);
+static int wrapper_set_doubles(Instance *inst, const unsigned int *vr, size_t n,
+                               const double *values) {
+    return WRAPPED(SetReal2, fmi2SetReal)(inst->handle, vr, n, values);
 }
 
-static int fetch(Instance *inst) {
-    unsigned int vrs[N_OUT + 1];
-    for (int i = 0; i < N_OUT; i++) vrs[i] = BULK_BASE + out_vrs[i];
-    int status = WRAPPED(GetReal2, fmi2GetReal)(inst->handle, vrs, N_OUT, inst->out_value);
-    inst->out_valid = status <= STATUS_WARNING;
-    return status;
+static int wrapper_get_doubles(Instance *inst, const unsigned int *vr, size_t n,
+                               double *values) {
+    return WRAPPED(GetReal2, fmi2GetReal)(inst->handle, vr, n, values);
 }
 
 /* the instance of c, or NULL (then the call returns Error) */
@@ -456,7 +593,9 @@ EXPORT int fmi2SetReal(void *c, const unsigned int vr[], size_t n, const double 
     if (!inst) return STATUS_ERROR;
     if (refuse_if_terminated(inst, "fmi2SetReal")) return STATUS_ERROR;
     if (cache_inputs(inst, vr, n, 'r', value, NULL, NULL)) return 0;
+    if (private_reference(inst, vr, n, "fmi2SetReal")) return STATUS_ERROR;
     inst->out_valid = 0;
+    mirror_inputs(inst, vr, n, 'r', value, NULL, NULL);
     PASS_THROUGH(inst, WRAPPED(SetReal2, fmi2SetReal)(c, vr, n, value));
 }
 
@@ -465,7 +604,9 @@ EXPORT int fmi2SetInteger(void *c, const unsigned int vr[], size_t n, const int 
     if (!inst) return STATUS_ERROR;
     if (refuse_if_terminated(inst, "fmi2SetInteger")) return STATUS_ERROR;
     if (cache_inputs(inst, vr, n, 'i', NULL, value, NULL)) return 0;
+    if (private_reference(inst, vr, n, "fmi2SetInteger")) return STATUS_ERROR;
     inst->out_valid = 0;
+    mirror_inputs(inst, vr, n, 'i', NULL, value, NULL);
     PASS_THROUGH(inst, WRAPPED(SetInt2, fmi2SetInteger)(c, vr, n, value));
 }
 
@@ -478,7 +619,9 @@ EXPORT int fmi2SetBoolean(void *c, const unsigned int vr[], size_t n, const int 
         for (size_t i = 0; i < n; i++) b[i] = value[i] != 0;
         if (cache_inputs(inst, vr, n, 'b', NULL, NULL, b)) return 0;
     }
+    if (private_reference(inst, vr, n, "fmi2SetBoolean")) return STATUS_ERROR;
     inst->out_valid = 0;
+    mirror_inputs(inst, vr, n, 'b', NULL, value, NULL);
     PASS_THROUGH(inst, WRAPPED(SetInt2, fmi2SetBoolean)(c, vr, n, value));
 }
 
@@ -489,9 +632,10 @@ EXPORT int fmi2GetReal(void *c, const unsigned int vr[], size_t n, double value[
     if (cached_outputs(inst, vr, n, 'r', pos)) {
         int status = inst->out_valid ? 0 : fetch(inst);
         if (status > STATUS_WARNING) return status;
-        for (size_t i = 0; i < n; i++) value[i] = inst->out_value[pos[i]];
+        for (size_t i = 0; i < n; i++) value[i] = inst->io[IO_OUT + pos[i]];
         return 0;
     }
+    if (private_reference(inst, vr, n, "fmi2GetReal")) return STATUS_ERROR;
     PASS_THROUGH(inst, WRAPPED(GetReal2, fmi2GetReal)(c, vr, n, value));
 }
 
@@ -504,9 +648,11 @@ static int get_ints2(void *c, const unsigned int vr[], size_t n, int value[], ch
         int status = inst->out_valid ? 0 : fetch(inst);
         if (status > STATUS_WARNING) return status;
         for (size_t i = 0; i < n; i++)
-            value[i] = type == 'b' ? inst->out_value[pos[i]] != 0.0 : (int)inst->out_value[pos[i]];
+            value[i] = type == 'b' ? inst->io[IO_OUT + pos[i]] != 0.0
+                                   : (int)inst->io[IO_OUT + pos[i]];
         return 0;
     }
+    if (private_reference(inst, vr, n, name)) return STATUS_ERROR;
     PASS_THROUGH(inst, ((GetInt2)wrapped(slot, name))(c, vr, n, value));
 }
 
@@ -528,15 +674,17 @@ EXPORT int fmi2SetFMUstate(void *c, void *state) {
     Instance *inst = usable(c);
     if (!inst) return STATUS_ERROR;
     inst->out_valid = 0;
-    PASS_THROUGH(inst, WRAPPED(State2, fmi2SetFMUstate)(c, state));
+    int flushed = flush(inst);
+    if (flushed > STATUS_WARNING) return flushed;
+    inst->worst = 0;
+    return resync(inst, status_of(inst, WRAPPED(State2, fmi2SetFMUstate)(c, state)));
 }
 
 EXPORT int fmi2DoStep(void *c, double t, double h, int noSetPrior) {
     Instance *inst = usable(c);
     if (!inst) return STATUS_ERROR;
-    inst->out_valid = 0;
-    PASS_THROUGH(inst, ((int (*)(void *, double, double, int))wrapped(
-                           &w_fmi2DoStep, "fmi2DoStep"))(c, t, h, noSetPrior));
+    STEP(inst, ((int (*)(void *, double, double, int))wrapped(&w_fmi2DoStep, "fmi2DoStep"))(
+                   c, t, h, noSetPrior));
 }
 
 EXPORT int fmi2ExitInitializationMode(void *c) {
@@ -545,8 +693,7 @@ EXPORT int fmi2ExitInitializationMode(void *c) {
     inst->worst = 0;
     int status = status_of(inst, WRAPPED(Call2, fmi2ExitInitializationMode)(c));
     inst->io_on = status <= STATUS_WARNING && N_IN + N_OUT > 0;
-    inst->out_valid = 0;
-    return status;
+    return resync(inst, status);
 }
 
 EXPORT int fmi2Terminate(void *c) {
@@ -565,8 +712,11 @@ EXPORT int fmi2Reset(void *c) {
     if (!inst) return STATUS_ERROR;
     inst->io_on = inst->out_valid = inst->n_dirty = inst->terminated = 0;
     memset(inst->in_dirty, 0, sizeof inst->in_dirty);
+    inst->io[IO_PULL] = 0.0;
     inst->worst = 0;
-    return status_of(inst, WRAPPED(Call2, fmi2Reset)(c));
+    int status = status_of(inst, WRAPPED(Call2, fmi2Reset)(c));
+    if (status <= STATUS_WARNING) attach(inst); /* the wrapper made a new Python instance */
+    return status;
 }
 EXPORT int fmi2SetDebugLogging(void *c, int loggingOn, size_t n, const char *const categories[]) {
     Instance *inst = find(c);
@@ -670,6 +820,7 @@ EXPORT void *fmi3InstantiateCoSimulation(const char *name, const char *token,
     inst->next = instances;
     instances = inst;
     pthread_mutex_unlock(&instances_lock);
+    attach(inst);
     return inst->handle;
 }
 
@@ -693,28 +844,14 @@ static void *wrapped(void **slot, const char *name) {
     return *slot;
 }
 
-static int flush(Instance *inst) {
-    if (!inst->n_dirty) return 0;
-    unsigned int vrs[N_IN + 1];
-    double values[N_IN + 1];
-    size_t n = 0;
-    for (int i = 0; i < N_IN; i++) {
-        if (!inst->in_dirty[i]) continue;
-        vrs[n] = BULK_BASE + in_vrs[i];
-        values[n++] = inst->in_value[i];
-        inst->in_dirty[i] = 0;
-    }
-    inst->n_dirty = 0;
-    return WRAPPED(SetF64, fmi3SetFloat64)(inst->handle, vrs, n, values, n);
+static int wrapper_set_doubles(Instance *inst, const unsigned int *vr, size_t n,
+                               const double *values) {
+    return WRAPPED(SetF64, fmi3SetFloat64)(inst->handle, vr, n, values, n);
 }
 
-static int fetch(Instance *inst) {
-    unsigned int vrs[N_OUT + 1];
-    for (int i = 0; i < N_OUT; i++) vrs[i] = BULK_BASE + out_vrs[i];
-    int status = WRAPPED(GetF64, fmi3GetFloat64)(inst->handle, vrs, N_OUT, inst->out_value,
-                                                 N_OUT);
-    inst->out_valid = status <= STATUS_WARNING;
-    return status;
+static int wrapper_get_doubles(Instance *inst, const unsigned int *vr, size_t n,
+                               double *values) {
+    return WRAPPED(GetF64, fmi3GetFloat64)(inst->handle, vr, n, values, n);
 }
 
 static Instance *usable(void *c) {
@@ -736,7 +873,9 @@ EXPORT int fmi3SetFloat64(void *c, const unsigned int vr[], size_t n, const doub
     if (!inst) return STATUS_ERROR;
     if (refuse_if_terminated(inst, "fmi3SetFloat64")) return STATUS_ERROR;
     if (n == nValues && cache_inputs(inst, vr, n, 'r', value, NULL, NULL)) return 0;
+    if (private_reference(inst, vr, n, "fmi3SetFloat64")) return STATUS_ERROR;
     inst->out_valid = 0;
+    if (n == nValues) mirror_inputs(inst, vr, n, 'r', value, NULL, NULL);
     PASS_THROUGH(inst, WRAPPED(SetF64, fmi3SetFloat64)(c, vr, n, value, nValues));
 }
 
@@ -746,7 +885,9 @@ EXPORT int fmi3SetInt32(void *c, const unsigned int vr[], size_t n, const int va
     if (!inst) return STATUS_ERROR;
     if (refuse_if_terminated(inst, "fmi3SetInt32")) return STATUS_ERROR;
     if (n == nValues && cache_inputs(inst, vr, n, 'i', NULL, value, NULL)) return 0;
+    if (private_reference(inst, vr, n, "fmi3SetInt32")) return STATUS_ERROR;
     inst->out_valid = 0;
+    if (n == nValues) mirror_inputs(inst, vr, n, 'i', NULL, value, NULL);
     PASS_THROUGH(inst, WRAPPED(SetI32, fmi3SetInt32)(c, vr, n, value, nValues));
 }
 
@@ -756,6 +897,7 @@ EXPORT int fmi3SetInt64(void *c, const unsigned int vr[], size_t n, const long l
     Instance *inst = usable(c);
     if (!inst) return STATUS_ERROR;
     if (refuse_if_terminated(inst, "fmi3SetInt64")) return STATUS_ERROR;
+    if (private_reference(inst, vr, n, "fmi3SetInt64")) return STATUS_ERROR;
     inst->out_valid = 0;
     PASS_THROUGH(inst, ((int (*)(void *, const unsigned int *, size_t, const long long *,
                                  size_t))wrapped(&w, "fmi3SetInt64"))(c, vr, n, value, nValues));
@@ -767,7 +909,9 @@ EXPORT int fmi3SetBoolean(void *c, const unsigned int vr[], size_t n,
     if (!inst) return STATUS_ERROR;
     if (refuse_if_terminated(inst, "fmi3SetBoolean")) return STATUS_ERROR;
     if (n == nValues && cache_inputs(inst, vr, n, 'b', NULL, NULL, value)) return 0;
+    if (private_reference(inst, vr, n, "fmi3SetBoolean")) return STATUS_ERROR;
     inst->out_valid = 0;
+    if (n == nValues) mirror_inputs(inst, vr, n, 'b', NULL, NULL, value);
     PASS_THROUGH(inst, WRAPPED(SetB3, fmi3SetBoolean)(c, vr, n, value, nValues));
 }
 
@@ -786,10 +930,11 @@ EXPORT int fmi3GetFloat64(void *c, const unsigned int vr[], size_t n, double val
     if (!inst) return STATUS_ERROR;
     int cached = from_cache(inst, vr, n, nValues, 'r', pos);
     if (cached == 0) {
-        for (size_t i = 0; i < n; i++) value[i] = inst->out_value[pos[i]];
+        for (size_t i = 0; i < n; i++) value[i] = inst->io[IO_OUT + pos[i]];
         return 0;
     }
     if (cached > 1) return cached;
+    if (private_reference(inst, vr, n, "fmi3GetFloat64")) return STATUS_ERROR;
     PASS_THROUGH(inst, WRAPPED(GetF64, fmi3GetFloat64)(c, vr, n, value, nValues));
 }
 
@@ -800,10 +945,11 @@ EXPORT int fmi3GetInt32(void *c, const unsigned int vr[], size_t n, int value[],
     if (!inst) return STATUS_ERROR;
     int cached = from_cache(inst, vr, n, nValues, 'i', pos);
     if (cached == 0) {
-        for (size_t i = 0; i < n; i++) value[i] = (int)inst->out_value[pos[i]];
+        for (size_t i = 0; i < n; i++) value[i] = (int)inst->io[IO_OUT + pos[i]];
         return 0;
     }
     if (cached > 1) return cached;
+    if (private_reference(inst, vr, n, "fmi3GetInt32")) return STATUS_ERROR;
     PASS_THROUGH(inst, WRAPPED(GetI32, fmi3GetInt32)(c, vr, n, value, nValues));
 }
 
@@ -814,10 +960,11 @@ EXPORT int fmi3GetBoolean(void *c, const unsigned int vr[], size_t n, unsigned c
     if (!inst) return STATUS_ERROR;
     int cached = from_cache(inst, vr, n, nValues, 'b', pos);
     if (cached == 0) {
-        for (size_t i = 0; i < n; i++) value[i] = inst->out_value[pos[i]] != 0.0;
+        for (size_t i = 0; i < n; i++) value[i] = inst->io[IO_OUT + pos[i]] != 0.0;
         return 0;
     }
     if (cached > 1) return cached;
+    if (private_reference(inst, vr, n, "fmi3GetBoolean")) return STATUS_ERROR;
     PASS_THROUGH(inst, WRAPPED(GetB3, fmi3GetBoolean)(c, vr, n, value, nValues));
 }
 
@@ -831,18 +978,20 @@ EXPORT int fmi3SetFMUState(void *c, void *state) {
     Instance *inst = usable(c);
     if (!inst) return STATUS_ERROR;
     inst->out_valid = 0;
-    PASS_THROUGH(inst, WRAPPED(State3, fmi3SetFMUState)(c, state));
+    int flushed = flush(inst);
+    if (flushed > STATUS_WARNING) return flushed;
+    inst->worst = 0;
+    return resync(inst, status_of(inst, WRAPPED(State3, fmi3SetFMUState)(c, state)));
 }
 
 EXPORT int fmi3DoStep(void *c, double t, double h, int noSetPrior, int *eventHandlingNeeded,
                       int *terminateSimulation, int *earlyReturn, double *lastSuccessfulTime) {
     Instance *inst = usable(c);
     if (!inst) return STATUS_ERROR;
-    inst->out_valid = 0;
-    PASS_THROUGH(inst, ((int (*)(void *, double, double, int, int *, int *, int *, double *))
-                            wrapped(&w_fmi3DoStep, "fmi3DoStep"))(
-                           c, t, h, noSetPrior, eventHandlingNeeded, terminateSimulation,
-                           earlyReturn, lastSuccessfulTime));
+    STEP(inst, ((int (*)(void *, double, double, int, int *, int *, int *, double *))wrapped(
+                   &w_fmi3DoStep, "fmi3DoStep"))(c, t, h, noSetPrior, eventHandlingNeeded,
+                                                 terminateSimulation, earlyReturn,
+                                                 lastSuccessfulTime));
 }
 
 EXPORT int fmi3ExitInitializationMode(void *c) {
@@ -851,8 +1000,7 @@ EXPORT int fmi3ExitInitializationMode(void *c) {
     inst->worst = 0;
     int status = status_of(inst, WRAPPED(Call3, fmi3ExitInitializationMode)(c));
     inst->io_on = status <= STATUS_WARNING && N_IN + N_OUT > 0;
-    inst->out_valid = 0;
-    return status;
+    return resync(inst, status);
 }
 
 EXPORT int fmi3Terminate(void *c) {
@@ -871,8 +1019,11 @@ EXPORT int fmi3Reset(void *c) {
     if (!inst) return STATUS_ERROR;
     inst->io_on = inst->out_valid = inst->n_dirty = inst->terminated = 0;
     memset(inst->in_dirty, 0, sizeof inst->in_dirty);
+    inst->io[IO_PULL] = 0.0;
     inst->worst = 0;
-    return status_of(inst, WRAPPED(Call3, fmi3Reset)(c));
+    int status = status_of(inst, WRAPPED(Call3, fmi3Reset)(c));
+    if (status <= STATUS_WARNING) attach(inst); /* the wrapper made a new Python instance */
+    return status;
 }
 
 EXPORT int fmi3EnterInitializationMode(void *c, int toleranceDefined, double tolerance,
