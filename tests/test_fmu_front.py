@@ -124,13 +124,13 @@ def _state_calls(fmu):
     return fmu.get_state, fmu.set_state, fmu.free_state
 
 
-def test_shared_block_takes_inputs_from_every_path(fmu_path):
-    """The inputs reach the engine whichever way they were set after initialisation: the
-    front's cache (the shared block the engine reads at doStep), a set that mixes inputs and
-    a tunable (passed through to Python, mirrored into the block), a set of only some inputs
-    (the others keep their values), and FMU states (restored inputs refresh the block).
-    Each path alone delivers the scenario's values, so the outputs are the core's, bit for
-    bit; a stale value in the block would change them."""
+def test_inputs_reach_the_engine_from_every_path(fmu_path):
+    """The inputs reach the engine whichever way they were set after initialisation: kept
+    by the front (moved into the engine's value list at doStep), a set that mixes inputs and
+    a tunable (passed through to Python, copied into the front's inputs), a set of only some
+    inputs (the others keep their values), and FMU states (restored inputs read back by the
+    front).  Each path alone delivers the scenario's values, so the outputs are the core's,
+    bit for bit; a stale value in the front's copy would change them."""
     from controller.fmu.engine import VARIABLES
     from controller.fmu.runner import core_run, master_values
     from tests.test_fmu import params_for
@@ -160,7 +160,7 @@ def test_shared_block_takes_inputs_from_every_path(fmu_path):
                 fmu._set_real(ins, [1e6 + x for x in vals])
                 set_state(state)
                 free_state(state)
-            s.setBoolean(eng, [engage])  # cached: the engine takes every input from the block
+            s.setBoolean(eng, [engage])  # kept by the front
             s.doStep(currentCommunicationPoint=k * T, communicationStepSize=T)
             r, i = fmu.outputs()
             reals.append(r)
@@ -172,28 +172,28 @@ def test_shared_block_takes_inputs_from_every_path(fmu_path):
 
 
 def test_private_value_references_are_refused(fmu_path):
-    """The front's private value references (bulk transfers, the shared block's address)
-    are not the importer's: a set or get of one is an error naming it, never reaches
-    Python, and the instance goes on."""
-    from controller.fmu.engine import BULK_BASE, IO_VR
+    """The front's private value references (from PRIVATE_BASE on: the engine's value
+    list's address) are not the importer's: a set or get of one is an error naming it,
+    never reaches Python, and the instance goes on."""
+    from controller.fmu.engine import PRIVATE_BASE, VALUE_LIST_VR
 
     with FmuTracker(fmu_path, start_values={"planner": 0}, logging_on=False) as fmu:
         fmu.run(conveyor_scenario(T), 3, T)
-        for call, args in ((fmu._set_real, ([IO_VR], [123.0])),
-                           (fmu._set_real, ([fmu.vr["master_x"], BULK_BASE], [1.0, 2.0])),
-                           (fmu._get_real, ([BULK_BASE + fmu.vr["x"]],))):
+        for call, args in ((fmu._get_real, ([VALUE_LIST_VR],)),
+                           (fmu._set_real, ([fmu.vr["master_x"], PRIVATE_BASE], [1.0, 2.0])),
+                           (fmu._set_real, ([VALUE_LIST_VR], [123.0]))):
             with pytest.raises(FMICallException):
                 call(*args)
         assert [m[0] for m in fmu.messages] == [3, 3, 3]
-        assert f"valueReference {IO_VR} is not a variable of" in fmu.messages[0][2]
-        assert f"valueReference {BULK_BASE} is not a variable of" in fmu.messages[1][2]
+        assert f"valueReference {VALUE_LIST_VR} is not a variable of" in fmu.messages[0][2]
+        assert f"valueReference {PRIVATE_BASE} is not a variable of" in fmu.messages[1][2]
         got = fmu.run(conveyor_scenario(T), 5, T, first_step=3)
     assert len(got.reals) == 5
 
 
-def test_reset_keeps_the_shared_block(fmu_path):
-    """fmiXReset makes a new Python instance: the front hands it the block again, so the
-    run after the reset is the first one again (FMI 2 and FMI 3)."""
+def test_reset_reattaches_the_value_list(fmu_path):
+    """fmiXReset makes a new Python instance: the front takes its value list, so the run
+    after the reset is the first one again (FMI 2 and FMI 3)."""
     scenario = conveyor_scenario(T, engage_s=0.02, release_s=0.15)
     with FmuTracker(fmu_path, start_values={"planner": 0}, logging_on=False) as fmu:
         first = fmu.run(scenario, 200, T)

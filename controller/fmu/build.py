@@ -194,15 +194,15 @@ def _front_library(model: str, fmi3: bool, vr_time: int, out: Path,
                "LIBPYTHON_BUILD": f'"{build_libpython()}"',
                "PY_MINOR": str(sys.version_info.minor), "VR_TIME": str(vr_time)}
     if cached:
-        from .engine import BULK_BASE, CACHED_INPUTS, CACHED_OUTPUTS, IO_SIZE, IO_VR
+        from .engine import CACHED_INPUTS, CACHED_OUTPUTS, PRIVATE_BASE, VALUE_LIST_VR, VARIABLES
 
         for prefix, table in (("IN", CACHED_INPUTS), ("OUT", CACHED_OUTPUTS)):
             defines[f"N_{prefix}"] = str(len(table))
             defines[f"{prefix}_VRS"] = "{" + ",".join(str(vr) for vr, _ in table) + "}"
             defines[f"{prefix}_TYPES"] = '"' + "".join(t for _, t in table) + '"'
-        defines["BULK_BASE"] = f"{BULK_BASE}u"
-        defines["IO_VR"] = f"{IO_VR}u"
-        defines["IO_SIZE_PY"] = str(IO_SIZE)  # checked against the front's layout
+        defines["PRIVATE_BASE"] = f"{PRIVATE_BASE}u"
+        defines["VALUE_LIST_VR"] = f"{VALUE_LIST_VR}u"
+        defines["N_VARIABLES"] = str(len(VARIABLES))
     cmd = [_c_compiler(), "-shared", "-fPIC", "-O2", "-fvisibility=hidden",
            *[f"-D{k}={v}" for k, v in defines.items()], "-o", str(out), str(FRONT_SOURCE),
            "-ldl", "-lpthread"]

@@ -96,11 +96,9 @@ exception into ``Fatal`` and then crashes the process on ``Terminate`` / ``FreeI
 from __future__ import annotations
 
 import copy
-import ctypes
 import logging
 import math
 import pickle
-import struct
 import traceback
 from collections.abc import Callable
 from enum import IntEnum
@@ -348,58 +346,21 @@ _FIXED = [(i, row[0]) for i, row in enumerate(VARIABLES) if row[3] == "fixed"]
 _FIXED_VRS = frozenset(i for i, _ in _FIXED)
 _TUNABLE_NAMES = [row[0] for row in VARIABLES if row[2] == "parameter" and row[3] != "fixed"]
 _VR_ENGAGE = VR["engage"]
-#: Private value references of the front library's bulk transfers (front.c, point 6):
-#: BULK_BASE + vr is variable vr as a float.  The front sets all pending inputs in
-#: one call and gets all outputs in one call; importers never see these references.
-BULK_BASE = 1 << 30
-_BULK_INPUT_SET = frozenset(BULK_BASE + i for i, row in enumerate(VARIABLES)
-                            if row[2] == "input")
-#: the bulk references of every input and every output, in order: the front library's
-#: usual calls (all inputs set, all outputs read): the inputs as the contiguous runs of ``v``
-#: they fill (a slice of ``v`` <- a slice of the values), the outputs by one itemgetter
-_BULK_ALL_INPUTS = [BULK_BASE + i for i, row in enumerate(VARIABLES) if row[2] == "input"]
-_BULK_ALL_OUTPUTS = [BULK_BASE + i for i, row in enumerate(VARIABLES) if row[2] == "output"]
-
-
-def _runs(indices: list[int]) -> list[tuple[slice, slice]]:
-    """(slice of v, slice of the values) for each run of consecutive ``indices``."""
-    out: list[tuple[slice, slice]] = []
-    start = 0
-    for j in range(1, len(indices) + 1):
-        if j == len(indices) or indices[j] != indices[j - 1] + 1:
-            out.append((slice(indices[start], indices[j - 1] + 1), slice(start, j)))
-            start = j
-    return out
-
-
-_IN_RUNS = _runs([vr - BULK_BASE for vr in _BULK_ALL_INPUTS])
-_get_all_outputs = itemgetter(*[vr - BULK_BASE for vr in _BULK_ALL_OUTPUTS])
-#: the non-Real inputs and their type (a bulk set carries every value as a float)
-_BULK_CONVERT = [(i, bool if row[1] == "Boolean" else int) for i, row in enumerate(VARIABLES)
-                 if row[2] == "input" and row[1] != "Real"]
-#: (value references, types r/i/b) of the inputs and outputs the front library caches
+#: The front library (front.c, point 6) serves the inputs and outputs of the importer's
+#: fmiXSet/Get calls from its own copy and moves them to and from ``TrackerEngine.v``
+#: itself, through Python's C API: it sets an input as Python's fast path does
+#: (``v[vr] = value``, a float; a bool for Booleans), reads the outputs as doubles.  So the
+#: list must stay the same object for the engine's life (it does: values are replaced in
+#: place).  References from ``PRIVATE_BASE`` on are the front's, refused from importers:
+#: a get of ``VALUE_LIST_VR`` (Real) returns the list's address, ``id(v)``, as a float
+#: (exact: below 2**53).
+PRIVATE_BASE = 1 << 30
+VALUE_LIST_VR = PRIVATE_BASE + (1 << 29)
+#: (value references, types r/i/b) of the inputs and outputs the front library keeps
 CACHED_INPUTS = [(i, row[1][0].lower()) for i, row in enumerate(VARIABLES)
                  if row[2] == "input"]
 CACHED_OUTPUTS = [(i, row[1][0].lower()) for i, row in enumerate(VARIABLES)
                   if row[2] == "output"]
-#: The block of doubles the front library shares with each instance (front.c, point 6):
-#: [IO_PULL] 1.0 when the importer set inputs since the engine last took them,
-#: the inputs (``CACHED_INPUTS`` order), [IO_WRITTEN] set to 1.0 by the engine once it wrote
-#: the outputs after a step, the outputs (``CACHED_OUTPUTS`` order).  The front sets inputs
-#: and serves outputs there in C, so a co-simulation step is one call into Python (doStep).
-#: Its address comes in a set of the private reference ``IO_VR`` (``attach_io``).
-IO_VR = BULK_BASE + (1 << 29)
-IO_PULL = 0
-IO_IN = 1
-IO_WRITTEN = IO_IN + len(CACHED_INPUTS)
-IO_OUT = IO_WRITTEN + 1
-IO_SIZE = IO_OUT + len(CACHED_OUTPUTS)
-assert [vr for vr, _ in CACHED_OUTPUTS] == [vr - BULK_BASE for vr in _BULK_ALL_OUTPUTS]
-_io_inputs = struct.Struct(f"={len(CACHED_INPUTS)}d").unpack_from  # from IO_IN
-_io_outputs = struct.Struct(f"={1 + len(CACHED_OUTPUTS)}d").pack_into  # IO_WRITTEN, outputs
-_IO_IN_OFFSET = 8 * IO_IN
-_IO_WRITTEN_OFFSET = 8 * IO_WRITTEN
-
 #: outputs whose initial value depends on a parameter (InitialUnknowns dependencies)
 INITIAL_DEPENDENCIES = {"x": "x0", "y": "y0", "z": "z0", "c": "c0",
                         "master_status": "master_input"}
@@ -566,8 +527,6 @@ class TrackerEngine:
         #: an engage edge is waiting for the conditioned master (its warning logged)
         self.engage_held = False
         self.T = float(self.v[VR["sample_time"]])
-        #: the block shared with the front library (``attach_io``), else None
-        self.io: ctypes.Array | None = None
         self._write_outputs(self._initial_setpoint(), 0, 0, 0)
         self.v[_VR_MSTATUS], self.v[_VR_MOUTLIERS] = int(MasterStatus.OK), 0
         track_instance(self)
@@ -627,10 +586,6 @@ class TrackerEngine:
         (pythonfmu/pythonfmu3 turn any exception in a setter into Fatal, so no error status
         can be returned); setting it to the value it has is accepted silently.  Any other
         reference that is not a settable ``kind`` raises TypeError (Fatal)."""
-        if vrs and vrs[0] >= BULK_BASE:
-            if kind == "Real" and len(vrs) == 1 and vrs[0] == IO_VR:
-                return self.attach_io(values[0])
-            return self.set_bulk(vrs, values)
         v = self.v
         for vr, value in zip(vrs, values):
             if vr in self.settable[kind]:
@@ -647,45 +602,14 @@ class TrackerEngine:
                 continue
             self.check(kind, [vr], settable=True)
 
-    def _take_inputs(self, values) -> None:
-        """Every input (``CACHED_INPUTS`` order, as floats), converted to its type."""
-        v = self.v
-        for dst, src in _IN_RUNS:
-            v[dst] = values[src]
-        for i, convert in _BULK_CONVERT:
-            v[i] = convert(v[i])
-
-    def set_bulk(self, vrs, values) -> None:
-        """The front library's bulk set of inputs (``BULK_BASE`` + vr, as floats)."""
-        if vrs == _BULK_ALL_INPUTS and len(values) == len(vrs):  # every input: by runs
-            return self._take_inputs(values)
-        if not _BULK_INPUT_SET.issuperset(vrs):
-            raise TypeError(f"valueReferences {list(vrs)} are not bulk input references")
-        v = self.v
-        for vr, value in zip(vrs, values):
-            v[vr - BULK_BASE] = value
-        for i, convert in _BULK_CONVERT:
-            v[i] = convert(v[i])
-
-    def attach_io(self, address: float) -> None:
-        """The front library's shared block (``IO_SIZE`` doubles at ``address``, which the
-        front owns for the instance's lifetime): from now on ``do_step`` takes the inputs
-        from it when ``IO_PULL`` is set and writes the outputs to it.  Goes around
-        pythonfmu's per-call path on purpose: its set/get calls build Python lists of every
-        value and reference each time."""
-        self.io = (ctypes.c_double * IO_SIZE).from_address(int(address))
-
-    def get_bulk(self, vrs) -> list:
-        """The front library's bulk get (``BULK_BASE`` + vr: any variable; the wrapper reads
-        each as a double)."""
-        if self.tracker is None:
-            self.refresh_initial()
-        v = self.v
-        if vrs == _BULK_ALL_OUTPUTS:  # every output: one itemgetter
-            return list(_get_all_outputs(v))
-        if min(vrs) < BULK_BASE or max(vrs) >= BULK_BASE + len(v):
-            raise TypeError(f"valueReferences {list(vrs)} are not bulk references")
-        return [v[vr - BULK_BASE] for vr in vrs]
+    def private_get(self, vrs) -> list[float]:
+        """A get of the front library's private reference (``VALUE_LIST_VR``: the address of
+        ``v``); anything else raises TypeError (not a variable)."""
+        if list(vrs) != [VALUE_LIST_VR]:
+            raise TypeError(f"valueReferences {list(vrs)} are not variables")
+        address = id(self.v)
+        assert float(address) == address  # exact as a double (x86_64: 47-bit addresses)
+        return [float(address)]
 
     def refresh_initial(self) -> None:
         """Before initialisation ends the outputs follow x0..c0 and master_input
@@ -765,7 +689,6 @@ class TrackerEngine:
         self.tracker = None
         self.conditioners = None
         self.terminated = True
-        self.io = None
 
     def do_step(self, current_time: float, step_size: float) -> int:
         """One communication step [current_time, current_time + step_size] [s].
@@ -776,10 +699,6 @@ class TrackerEngine:
         up to that grid point.  A step that reaches no new grid point within the tolerance
         (the ~5e-14 s remainder an accumulating importer sends at the stop time) is a no-op.
         """
-        io = self.io
-        if io is not None and io[IO_PULL]:  # the importer set inputs: take them
-            self._take_inputs(_io_inputs(io, _IO_IN_OFFSET))
-            io[IO_PULL] = 0.0
         if self.terminated:
             self.report(f"{self.instance_name}: doStep at t={current_time!r} s refused: the "
                         f"instance is terminated (only reset or free it)")
@@ -842,8 +761,6 @@ class TrackerEngine:
             return ERROR
         self.time = end
         self.k = k_end
-        if io is not None:
-            _io_outputs(io, _IO_WRITTEN_OFFSET, 1.0, *_get_all_outputs(self.v))
         return OK
 
     def _step(self, n: int, T: float, master_values: tuple) -> None:

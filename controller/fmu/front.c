@@ -23,28 +23,29 @@
  *    Fatal (pythonfmu frees the instance twice then);
  * 5. FMI 3: passes fmi3EnterInitializationMode's startTime to the Python part (pythonfmu3 does
  *    not) by setting the independent variable `time` (VR_TIME) just before it.
- * 6. shares a block of doubles with the Python engine of the trackers (N_IN, N_OUT > 0;
- *    engine.IO_VR and the IO_* next to it): its address goes to Python once, at
- *    instantiation, as a set of the private value reference IO_VR.  After initialisation
- *    setting inputs writes them into the block and getting outputs reads them from it, in
- *    C; doStep is the only call into Python: the engine takes the inputs from the block
- *    (when some were set) and writes the outputs back.  The block always holds Python's
- *    current inputs: a set the block does not take (inputs mixed with parameters) goes to
- *    Python and is copied into the block too, and after exitInitializationMode and
- *    SetFMUState the front reads the inputs back from Python.  Before any call other than
- *    doStep the inputs set since Python last took them go to Python in one bulk
- *    fmiXSetReal/SetFloat64 of the private references BULK_BASE + vr ("vr, as a float",
- *    engine.BULK_BASE), and outputs Python did not write (a refused step) are fetched in one
- *    bulk get, so FMU states and pass-through gets see every value.  The values are the same
- *    (doubles both ways; the integer outputs fit exactly).  The importer's own references at
- *    or above BULK_BASE are refused.
+ * 6. keeps the inputs and outputs of the trackers (N_IN, N_OUT > 0) and moves them to and
+ *    from the Python engine's value list (engine.TrackerEngine.v) itself, through Python's
+ *    C API with the GIL held: after initialisation setting inputs only stores them and
+ *    getting outputs reads the front's copy, in C, so a co-simulation step is one call into
+ *    Python (doStep: the inputs set since the last step go into the list before it, all
+ *    outputs are read from it after it).  The list's address comes from Python once per
+ *    Python instance (a get of the private reference VALUE_LIST_VR, engine.VALUE_LIST_VR),
+ *    the front holds a reference to it.  Inputs are stored as Python's own setters store
+ *    them (a float; a bool for Booleans), outputs read as doubles (the integer outputs fit
+ *    exactly): the values are the same.  Before any other call into Python the inputs set
+ *    since the last step go into the list too, so FMU states and pass-through gets see
+ *    every value; a set the front does not keep (inputs mixed with parameters) goes to
+ *    Python and into the front's copy; after exitInitializationMode and SetFMUState the
+ *    front reads the inputs back.  The importer's references from PRIVATE_BASE on are
+ *    refused.  Where the list cannot be had (Python's C API not found), every call goes to
+ *    Python as it is.
  * Every other FMI function jumps straight into the wrapper (an x86_64 trampoline, no cost).
  *
  * Compile-time definitions (set by the build): FMI_VERSION (2 or 3), MODEL (model
  * identifier), REAL_LIBRARY (file name of the wrapper), LIBPYTHON_BUILD (path), PY_MINOR
- * (X of 3.X of the building Python), VR_TIME (FMI 3), BULK_BASE, IO_VR, IO_SIZE_PY (the
- * block's size in the engine, checked), N_IN, IN_VRS, IN_TYPES, N_OUT, OUT_VRS, OUT_TYPES
- * (the shared variables: value references and types r/i/b).
+ * (X of 3.X of the building Python), VR_TIME (FMI 3), PRIVATE_BASE, VALUE_LIST_VR,
+ * N_VARIABLES (the list's length), N_IN, IN_VRS, IN_TYPES, N_OUT, OUT_VRS, OUT_TYPES (the
+ * kept variables: value references = positions in the list, types r/i/b).
  */
 #define _GNU_SOURCE
 #include <dlfcn.h>
@@ -64,18 +65,9 @@
 #define N_OUT 0
 #define OUT_VRS {0}
 #define OUT_TYPES ""
-#define BULK_BASE 0
-#define IO_VR 0
-#endif
-/* the shared block (engine.IO_VR and the IO_* next to it): [IO_PULL] 1.0 when Python is to take the inputs,
-   [IO_IN..) the inputs, [IO_WRITTEN] 1.0 once Python wrote the outputs, [IO_OUT..) them */
-#define IO_PULL 0
-#define IO_IN 1
-#define IO_WRITTEN (IO_IN + N_IN)
-#define IO_OUT (IO_WRITTEN + 1)
-#define IO_SIZE (IO_OUT + N_OUT)
-#if defined(IO_SIZE_PY) && IO_SIZE_PY != IO_SIZE
-#error "the shared block's layout differs from engine.IO_VR and the IO_* next to it"
+#define PRIVATE_BASE 0
+#define VALUE_LIST_VR 0
+#define N_VARIABLES 0
 #endif
 #define EXPORT __attribute__((visibility("default")))
 #define STATUS_WARNING 1
@@ -142,12 +134,11 @@ typedef struct Instance {
     int io_on;           /* after a successful exitInitializationMode */
     int terminated;      /* after fmiXTerminate: setters refused (until reset) */
     int n_dirty;         /* inputs set since Python last got them */
-    int out_valid;       /* io[IO_OUT..] holds Python's current outputs */
-    int attached;        /* Python reads and writes io (engine.attach_io) */
+    int out_valid;       /* out_value holds Python's current outputs */
     char in_dirty[N_IN + 1];
-    /* the block shared with Python: IO_PULL, the inputs,
-       IO_WRITTEN, the outputs, as doubles */
-    double io[IO_SIZE];
+    double in_value[N_IN + 1];
+    double out_value[N_OUT + 1];
+    void *values;        /* the engine's value list (a PyObject *, a reference held) */
 #if FMI_VERSION == 2
     void *callbacks[5];  /* fmi2CallbackFunctions handed to the wrapper (logger replaced) */
 #endif
@@ -310,7 +301,7 @@ static int cache_inputs(Instance *inst, const unsigned int *vr, size_t n, char t
     for (size_t i = 0; i < n; i++)
         if ((pos[i] = position(in_vrs, in_types, N_IN, vr[i], type)) < 0) return 0;
     for (size_t i = 0; i < n; i++) {
-        inst->io[IO_IN + pos[i]] = input_value(i, reals, ints, bools);
+        inst->in_value[pos[i]] = input_value(i, reals, ints, bools);
         if (!inst->in_dirty[pos[i]]) {
             inst->in_dirty[pos[i]] = 1;
             inst->n_dirty++;
@@ -329,102 +320,179 @@ static void mirror_inputs(Instance *inst, const unsigned int *vr, size_t n, char
         int pos = position(in_vrs, in_types, N_IN, vr[i], type);
         if (pos < 0) continue;
         double x = input_value(i, reals, ints, bools);
-        inst->io[IO_IN + pos] = type == 'b' ? x != 0.0 : x; /* FMI 2 Booleans are ints */
+        inst->in_value[pos] = type == 'b' ? x != 0.0 : x; /* FMI 2 Booleans are ints */
     }
 }
 
-/* an importer's value reference at or above BULK_BASE (the front's private ones): refused,
-   never passed to Python (IO_VR carries an address) */
+/* an importer's value reference from PRIVATE_BASE on (the front's): refused, never passed
+   to Python */
 static int private_reference(Instance *inst, const unsigned int *vr, size_t n,
                              const char *function) {
-    if (BULK_BASE == 0) return 0;
+#if N_IN + N_OUT > 0
     for (size_t i = 0; i < n; i++) {
-        if (vr[i] < BULK_BASE) continue;
+        if (vr[i] < PRIVATE_BASE) continue;
         char text[256];
         snprintf(text, sizeof text, "%s: %s refused: valueReference %u is not a variable of "
                  MODEL, inst->name, function, vr[i]);
         log_error(inst, text);
         return 1;
     }
+#else
+    (void)inst, (void)vr, (void)n, (void)function;
+#endif
     return 0;
 }
 
-/* the wrapper's get/set of doubles (fmi2GetReal/SetReal, fmi3GetFloat64/SetFloat64) */
-static int wrapper_set_doubles(Instance *inst, const unsigned int *vr, size_t n,
-                               const double *values);
+/* the wrapper's get of doubles (fmi2GetReal, fmi3GetFloat64) */
 static int wrapper_get_doubles(Instance *inst, const unsigned int *vr, size_t n,
                                double *values);
 
-/* before a call the cache cannot serve: the set inputs go to Python in one bulk set */
-static int flush(Instance *inst) {
-    if (!inst->n_dirty) return 0;
-    unsigned int vrs[N_IN + 1];
-    double values[N_IN + 1];
-    size_t n = 0;
+/* ---- the engine's value list through Python's C API (the stable ABI's functions, found
+   in the process: the host's Python or the one the front loaded) ------------------------ */
+typedef struct PyObject PyObject;
+static struct {
+    int (*GILState_Ensure)(void);
+    void (*GILState_Release)(int);
+    PyObject *(*Float_FromDouble)(double);
+    double (*Float_AsDouble)(PyObject *);
+    PyObject *(*Bool_FromLong)(long);
+    PyObject *(*Long_FromLong)(long);
+    int (*List_SetItem)(PyObject *, ssize_t, PyObject *);
+    PyObject *(*List_GetItem)(PyObject *, ssize_t);
+    ssize_t (*List_Size)(PyObject *);
+    void (*IncRef)(PyObject *);
+    void (*DecRef)(PyObject *);
+    PyObject *(*Err_Occurred)(void);
+    void (*Err_Clear)(void);
+    int ok;
+} py;
+static pthread_once_t py_once = PTHREAD_ONCE_INIT;
+
+static void resolve_python_api(void) {
+    int ok = 1;
+#define PY_API(field, name) ok &= (*(void **)&py.field = dlsym(RTLD_DEFAULT, name)) != NULL;
+    PY_API(GILState_Ensure, "PyGILState_Ensure")
+    PY_API(GILState_Release, "PyGILState_Release")
+    PY_API(Float_FromDouble, "PyFloat_FromDouble")
+    PY_API(Float_AsDouble, "PyFloat_AsDouble")
+    PY_API(Bool_FromLong, "PyBool_FromLong")
+    PY_API(Long_FromLong, "PyLong_FromLong")
+    PY_API(List_SetItem, "PyList_SetItem")
+    PY_API(List_GetItem, "PyList_GetItem")
+    PY_API(List_Size, "PyList_Size")
+    PY_API(IncRef, "Py_IncRef")
+    PY_API(DecRef, "Py_DecRef")
+    PY_API(Err_Occurred, "PyErr_Occurred")
+    PY_API(Err_Clear, "PyErr_Clear")
+#undef PY_API
+    py.ok = ok;
+}
+
+/* the inputs set since the last transfer into the list, as Python's setters store them
+   (GIL held); 0, or Error if Python refused (no memory) */
+static int push_inputs(Instance *inst) {
+    int status = 0;
     for (int i = 0; i < N_IN; i++) {
         if (!inst->in_dirty[i]) continue;
-        vrs[n] = BULK_BASE + in_vrs[i];
-        values[n++] = inst->io[IO_IN + i];
         inst->in_dirty[i] = 0;
+        double x = inst->in_value[i];
+        PyObject *item = in_types[i] == 'r' ? py.Float_FromDouble(x)
+                         : in_types[i] == 'b' ? py.Bool_FromLong(x != 0.0)
+                                              : py.Long_FromLong((long)x);
+        if (!item || py.List_SetItem(inst->values, in_vrs[i], item) != 0) status = STATUS_ERROR;
     }
     inst->n_dirty = 0;
-    return wrapper_set_doubles(inst, vrs, n, values);
-}
-
-/* the outputs from Python in one bulk get (when Python has not written them) */
-static int fetch(Instance *inst) {
-    unsigned int vrs[N_OUT + 1];
-    for (int i = 0; i < N_OUT; i++) vrs[i] = BULK_BASE + out_vrs[i];
-    int status = wrapper_get_doubles(inst, vrs, N_OUT, inst->io + IO_OUT);
-    inst->out_valid = status <= STATUS_WARNING;
+    if (status) py.Err_Clear();
     return status;
 }
 
-/* the inputs from Python into the block (after exitInitializationMode, SetFMUState) */
-static int fetch_inputs(Instance *inst) {
-    unsigned int vrs[N_IN + 1];
-    for (int i = 0; i < N_IN; i++) vrs[i] = BULK_BASE + in_vrs[i];
-    return wrapper_get_doubles(inst, vrs, N_IN, inst->io + IO_IN);
+/* n values of the list at vrs into out, as doubles (GIL held); 0 or Error */
+static int read_values(Instance *inst, const unsigned int *vrs, int n, double *out) {
+    for (int i = 0; i < n; i++) {
+        PyObject *item = py.List_GetItem(inst->values, vrs[i]);
+        double x = item ? py.Float_AsDouble(item) : -1.0;
+        if (x == -1.0 && py.Err_Occurred()) {
+            py.Err_Clear();
+            return STATUS_ERROR;
+        }
+        out[i] = x;
+    }
+    return 0;
 }
 
-/* give Python the block's address (set IO_VR to it, as a double: exact below 2^53); on
-   success Python reads the inputs from the block and writes the outputs to it at doStep */
+/* before a call into Python other than doStep: the set inputs go into the list */
+static int flush(Instance *inst) {
+    if (!inst->n_dirty || !inst->values) return 0;
+    int gil = py.GILState_Ensure();
+    int status = push_inputs(inst);
+    py.GILState_Release(gil);
+    return status;
+}
+
+/* the outputs from the list (the first get after a call that may have changed them) */
+static int fetch(Instance *inst) {
+    int gil = py.GILState_Ensure();
+    int status = read_values(inst, out_vrs, N_OUT, inst->out_value);
+    py.GILState_Release(gil);
+    inst->out_valid = status == 0;
+    return status;
+}
+
+/* the inputs from the list (after exitInitializationMode, SetFMUState) */
+static int fetch_inputs(Instance *inst) {
+    int gil = py.GILState_Ensure();
+    int status = read_values(inst, in_vrs, N_IN, inst->in_value);
+    py.GILState_Release(gil);
+    return status;
+}
+
+static void detach(Instance *inst) {
+    if (!inst->values) return;
+    int gil = py.GILState_Ensure();
+    py.DecRef(inst->values);
+    py.GILState_Release(gil);
+    inst->values = NULL;
+}
+
+/* the engine's value list, from a get of VALUE_LIST_VR (its address as a double), checked
+   to be a list of N_VARIABLES; without it every call goes to Python */
 static void attach(Instance *inst) {
     if (N_IN + N_OUT == 0) return;
-    const unsigned int vr = IO_VR;
-    double address = (double)(uintptr_t)inst->io;
-    if ((uintptr_t)address != (uintptr_t)inst->io) return;
+    detach(inst);
+    pthread_once(&py_once, resolve_python_api);
+    if (!py.ok) return;
+    const unsigned int vr = VALUE_LIST_VR;
+    double address = 0.0;
     inst->worst = 0;
-    inst->attached = wrapper_set_doubles(inst, &vr, 1, &address) == 0 && inst->worst == 0;
-}
-
-/* doStep, the block attached: the step is the only call into Python.  Before it IO_PULL
-   says whether inputs were set since Python last took them; Python takes them (and clears
-   IO_PULL), steps, writes the outputs and IO_WRITTEN.  Inputs Python did not take (it
-   failed before) stay marked: the next other call flushes them. */
-static void before_step(Instance *inst) {
-    inst->io[IO_PULL] = inst->n_dirty ? 1.0 : 0.0;
-    inst->io[IO_WRITTEN] = 0.0;
-    inst->out_valid = 0;
-    inst->worst = 0;
-}
-
-static int after_step(Instance *inst, int status) {
-    if (inst->io[IO_PULL] == 0.0 && inst->n_dirty) {
-        memset(inst->in_dirty, 0, sizeof inst->in_dirty);
-        inst->n_dirty = 0;
+    if (wrapper_get_doubles(inst, &vr, 1, &address) != 0 || inst->worst || address <= 0.0)
+        return;
+    PyObject *list = (PyObject *)(uintptr_t)address;
+    int gil = py.GILState_Ensure();
+    if (py.List_Size(list) == N_VARIABLES) {
+        py.IncRef(list);
+        inst->values = list;
+    } else {
+        py.Err_Clear();
     }
-    inst->io[IO_PULL] = 0.0;
-    inst->out_valid = status <= STATUS_WARNING && inst->io[IO_WRITTEN] != 0.0;
-    return status;
+    py.GILState_Release(gil);
 }
 
+/* doStep with the list: the set inputs into it, the step, every output out of it, the GIL
+   held throughout (the wrapper's own PyGILState_Ensure nests) */
 #define STEP(inst, call)                                                                  \
     do {                                                                                  \
-        if (inst->attached && inst->io_on) {                                              \
-            before_step(inst);                                                            \
+        if (inst->values && inst->io_on) {                                                \
+            int gil = py.GILState_Ensure();                                               \
+            int pushed = push_inputs(inst);                                               \
+            if (pushed) {                                                                 \
+                py.GILState_Release(gil);                                                 \
+                return pushed;                                                            \
+            }                                                                             \
+            inst->worst = 0;                                                              \
             int stepped = status_of(inst, call);                                          \
-            return after_step(inst, stepped);                                             \
+            inst->out_valid = read_values(inst, out_vrs, N_OUT, inst->out_value) == 0;    \
+            py.GILState_Release(gil);                                                     \
+            return stepped;                                                               \
         }                                                                                 \
         inst->out_valid = 0;                                                              \
         PASS_THROUGH(inst, call);                                                         \
@@ -563,11 +631,6 @@ static void *wrapped(void **slot, const char *name) {
     return *slot;
 }
 
-static int wrapper_set_doubles(Instance *inst, const unsigned int *vr, size_t n,
-                               const double *values) {
-    return WRAPPED(SetReal2, fmi2SetReal)(inst->handle, vr, n, values);
-}
-
 static int wrapper_get_doubles(Instance *inst, const unsigned int *vr, size_t n,
                                double *values) {
     return WRAPPED(GetReal2, fmi2GetReal)(inst->handle, vr, n, values);
@@ -632,7 +695,7 @@ EXPORT int fmi2GetReal(void *c, const unsigned int vr[], size_t n, double value[
     if (cached_outputs(inst, vr, n, 'r', pos)) {
         int status = inst->out_valid ? 0 : fetch(inst);
         if (status > STATUS_WARNING) return status;
-        for (size_t i = 0; i < n; i++) value[i] = inst->io[IO_OUT + pos[i]];
+        for (size_t i = 0; i < n; i++) value[i] = inst->out_value[pos[i]];
         return 0;
     }
     if (private_reference(inst, vr, n, "fmi2GetReal")) return STATUS_ERROR;
@@ -648,8 +711,8 @@ static int get_ints2(void *c, const unsigned int vr[], size_t n, int value[], ch
         int status = inst->out_valid ? 0 : fetch(inst);
         if (status > STATUS_WARNING) return status;
         for (size_t i = 0; i < n; i++)
-            value[i] = type == 'b' ? inst->io[IO_OUT + pos[i]] != 0.0
-                                   : (int)inst->io[IO_OUT + pos[i]];
+            value[i] = type == 'b' ? inst->out_value[pos[i]] != 0.0
+                                   : (int)inst->out_value[pos[i]];
         return 0;
     }
     if (private_reference(inst, vr, n, name)) return STATUS_ERROR;
@@ -692,7 +755,7 @@ EXPORT int fmi2ExitInitializationMode(void *c) {
     if (!inst) return STATUS_ERROR;
     inst->worst = 0;
     int status = status_of(inst, WRAPPED(Call2, fmi2ExitInitializationMode)(c));
-    inst->io_on = status <= STATUS_WARNING && N_IN + N_OUT > 0;
+    inst->io_on = status <= STATUS_WARNING && inst->values != NULL;
     return resync(inst, status);
 }
 
@@ -712,7 +775,6 @@ EXPORT int fmi2Reset(void *c) {
     if (!inst) return STATUS_ERROR;
     inst->io_on = inst->out_valid = inst->n_dirty = inst->terminated = 0;
     memset(inst->in_dirty, 0, sizeof inst->in_dirty);
-    inst->io[IO_PULL] = 0.0;
     inst->worst = 0;
     int status = status_of(inst, WRAPPED(Call2, fmi2Reset)(c));
     if (status <= STATUS_WARNING) attach(inst); /* the wrapper made a new Python instance */
@@ -732,6 +794,7 @@ EXPORT void fmi2FreeInstance(void *c) {
     void (*f)(void *) = (void (*)(void *))real("fmi2FreeInstance");
     if (!inst) return;
     if (f && !inst->fatal) f(c);
+    detach(inst);
     forget(inst);
 }
 
@@ -844,11 +907,6 @@ static void *wrapped(void **slot, const char *name) {
     return *slot;
 }
 
-static int wrapper_set_doubles(Instance *inst, const unsigned int *vr, size_t n,
-                               const double *values) {
-    return WRAPPED(SetF64, fmi3SetFloat64)(inst->handle, vr, n, values, n);
-}
-
 static int wrapper_get_doubles(Instance *inst, const unsigned int *vr, size_t n,
                                double *values) {
     return WRAPPED(GetF64, fmi3GetFloat64)(inst->handle, vr, n, values, n);
@@ -930,7 +988,7 @@ EXPORT int fmi3GetFloat64(void *c, const unsigned int vr[], size_t n, double val
     if (!inst) return STATUS_ERROR;
     int cached = from_cache(inst, vr, n, nValues, 'r', pos);
     if (cached == 0) {
-        for (size_t i = 0; i < n; i++) value[i] = inst->io[IO_OUT + pos[i]];
+        for (size_t i = 0; i < n; i++) value[i] = inst->out_value[pos[i]];
         return 0;
     }
     if (cached > 1) return cached;
@@ -945,7 +1003,7 @@ EXPORT int fmi3GetInt32(void *c, const unsigned int vr[], size_t n, int value[],
     if (!inst) return STATUS_ERROR;
     int cached = from_cache(inst, vr, n, nValues, 'i', pos);
     if (cached == 0) {
-        for (size_t i = 0; i < n; i++) value[i] = (int)inst->io[IO_OUT + pos[i]];
+        for (size_t i = 0; i < n; i++) value[i] = (int)inst->out_value[pos[i]];
         return 0;
     }
     if (cached > 1) return cached;
@@ -960,7 +1018,7 @@ EXPORT int fmi3GetBoolean(void *c, const unsigned int vr[], size_t n, unsigned c
     if (!inst) return STATUS_ERROR;
     int cached = from_cache(inst, vr, n, nValues, 'b', pos);
     if (cached == 0) {
-        for (size_t i = 0; i < n; i++) value[i] = inst->io[IO_OUT + pos[i]] != 0.0;
+        for (size_t i = 0; i < n; i++) value[i] = inst->out_value[pos[i]] != 0.0;
         return 0;
     }
     if (cached > 1) return cached;
@@ -999,7 +1057,7 @@ EXPORT int fmi3ExitInitializationMode(void *c) {
     if (!inst) return STATUS_ERROR;
     inst->worst = 0;
     int status = status_of(inst, WRAPPED(Call3, fmi3ExitInitializationMode)(c));
-    inst->io_on = status <= STATUS_WARNING && N_IN + N_OUT > 0;
+    inst->io_on = status <= STATUS_WARNING && inst->values != NULL;
     return resync(inst, status);
 }
 
@@ -1019,7 +1077,6 @@ EXPORT int fmi3Reset(void *c) {
     if (!inst) return STATUS_ERROR;
     inst->io_on = inst->out_valid = inst->n_dirty = inst->terminated = 0;
     memset(inst->in_dirty, 0, sizeof inst->in_dirty);
-    inst->io[IO_PULL] = 0.0;
     inst->worst = 0;
     int status = status_of(inst, WRAPPED(Call3, fmi3Reset)(c));
     if (status <= STATUS_WARNING) attach(inst); /* the wrapper made a new Python instance */
@@ -1054,6 +1111,7 @@ EXPORT void fmi3FreeInstance(void *c) {
     void (*f)(void *) = (void (*)(void *))real("fmi3FreeInstance");
     if (!inst) return;
     if (f && !inst->fatal) f(c);
+    detach(inst);
     forget(inst);
 }
 #endif

@@ -139,8 +139,8 @@ class CanTracker3(EngineStateMixin, Fmi3Slave):
     # -- variable access --------------------------------------------------------------
     def get_float64(self, vrs):
         if not self._real.issuperset(vrs):
-            if vrs and vrs[0] >= self._eng.BULK_BASE:  # the front library's bulk get
-                return self._engine.get_bulk(vrs)
+            if vrs and vrs[0] >= self._eng.PRIVATE_BASE:  # the front library's
+                return self._engine.private_get(vrs)
             return [self._engine.time if vr == self._vr_time else self._get_checked("Real", vr)
                     for vr in vrs]
         if self._engine.tracker is None:

@@ -140,8 +140,8 @@ class CanTracker(EngineStateMixin, Fmi2Slave):
     # -- variable access --------------------------------------------------------------
     def get_real(self, vrs):
         if not self._real.issuperset(vrs):
-            if vrs and vrs[0] >= self._eng.BULK_BASE:  # the front library's bulk get
-                return self._engine.get_bulk(vrs)
+            if vrs and vrs[0] >= self._eng.PRIVATE_BASE:  # the front library's
+                return self._engine.private_get(vrs)
             self._engine.check("Real", vrs)
         if self._engine.tracker is None:
             self._engine.refresh_initial()

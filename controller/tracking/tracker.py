@@ -44,8 +44,11 @@ from .vec import Vec, vec3
 DesyncBuilder = Callable[["Tracker"], "tuple[Desync, Desync] | None"]
 
 _SYNCING, _SYNCED = TrackState.SYNCING, TrackState.SYNCED
-_IMFS = {TrackState.OFF: Imfs.NOT_SYNCHRONIZED, TrackState.SYNCING: Imfs.NOT_SYNCHRONIZED,
-         TrackState.SYNCED: Imfs.SYNCHRONIZED, TrackState.DESYNCING: Imfs.DESYNCING}
+#: IMFS per state, indexed by the state's value (an IntEnum indexes a tuple directly; a dict
+#: would hash the member with Enum's Python-level __hash__)
+_IMFS: tuple[Imfs, ...] = (Imfs.NOT_SYNCHRONIZED, Imfs.NOT_SYNCHRONIZED, Imfs.SYNCHRONIZED,
+                           Imfs.DESYNCING)
+assert [int(s) for s in TrackState] == [0, 1, 2, 3]
 
 
 def _norm(v: Vec) -> float:
