@@ -21,7 +21,11 @@ Two stages (docs/spec/master-conditioning.md#2 to #4):
    of jerk steps (an exponential average of the innovations beyond ``jerk_step_sigma``)
    re-opens the filter as a jerk step of 1 sigma = JerkMax would, and the gain runs down
    along the Riccati recursion to the steady state; the prediction is over the actual time
-   between sample instants (jitter, missing samples).
+   between sample instants (jitter, missing samples).  At a detection the step is fitted
+   to the samples since the last one (a generalized likelihood ratio: onset and size, the
+   jerk after it within JerkMax or back to 0; eq. 2.8) and, confirmed, the belt's motion
+   is revised back to the onset; the output takes the revision as one jump (eq. 4.5,
+   reported as a ``JERK_STEP`` event) that the tracker closes within the robot's limits.
    *Outliers*: a sample whose innovation exceeds the gate (eq. 3.1)
    ``outlier_mm + JerkMax*dt^3/6`` (dt: time since the last accepted sample) is not
    something the belt can have done: it is rejected, counted, reported as an
@@ -83,6 +87,9 @@ class EventKind(IntEnum):
     OUTLIER = 1  #: a sample rejected as physically impossible (size: its innovation [mm])
     LOST = 2  #: too many consecutive outliers (size: the last innovation [mm])
     READY = 3  #: the estimator is warmed up (again) and the output valid
+    #: a jerk step of the belt detected: the estimate revised, the output jumped with it
+    #: (size: the output's position jump [mm]; docs/spec/master-conditioning.md#2.8)
+    JERK_STEP = 4
 
 
 @dataclass(frozen=True, slots=True)
@@ -306,6 +313,15 @@ JERK_STEP_WINDOW_S = 0.04
 JERK_STEP_MEMORY_S = 0.005
 #: after a detection the next one is not before this long [s] (the gains run down first)
 JERK_STEP_HOLD_S = 0.06
+#: the jerk-step fit's window [s] (eq. 2.8): longer than the detector's delay (40-55 ms
+#: at 50 um / 4 ms), shorter than a belt's S-curve phases
+GLR_WINDOW_S = 0.1
+#: a detection is confirmed when the fit's log-likelihood ratio (twice: chi^2 units) is at
+#: least this (eq. 2.8); below it, the filter is re-opened as in eq. 2.7
+GLR_CONFIRM = 12.0
+#: the hypothesis "the jerk returned to 0" is taken unless the free step fits better by more
+#: than this (chi^2 units; eq. 2.8)
+GLR_ZERO_PENALTY = 4.0
 #: the warm-up's gate: base + this many standard deviations of the innovation (eq. 3.1)
 WARMUP_GATE_SIGMA = 6.0
 #: the KINEMATIC law's pole is at most this / T [rad/s] (eq. 4.2): a discrete law with a
@@ -315,19 +331,21 @@ OUTPUT_POLE_T = 0.25
 
 def jerk_step_schedule(q: float, r: float, dt: float, P: np.ndarray, jerk_mm_s3: float,
                        window_s: float = JERK_STEP_WINDOW_S, rtol: float = 1e-3,
-                       max_samples: int = 100_000) -> tuple[list, list]:
+                       max_samples: int = 100_000) -> tuple[list, list, list]:
     """Gains after a detected jerk step (eq. 2.7): the Riccati recursion of the quiet model
     (snap q, measurement variance r [mm^2], period dt [s]) from its steady-state covariance
     P plus the process noise of a jerk change of 1 sigma = ``jerk_mm_s3`` spread over
     ``window_s``, until the gain is within ``rtol`` of the steady state.  Returns the gains
-    (p, v, a, j rows) and the innovation standard deviations [mm], one per sample; the last
-    entry is the steady state."""
+    (p, v, a, j rows), the innovation standard deviations [mm] and the covariances after
+    each update (the GLR's prior, eq. 2.8), one per sample; the last entry is the steady
+    state."""
     K_ss, _ = steady_state(q, r, dt)
     F = _f_matrix(dt)
     Q = _q_matrix(q, dt)
     P = P + _q_matrix(jerk_mm_s3 ** 2 / window_s, window_s)
     Ks: list = []
     Ss: list = []
+    Ps: list = []
     for _ in range(max_samples):
         Pp = F @ P @ F.T + Q
         S = float(Pp[0, 0] + r)
@@ -335,11 +353,62 @@ def jerk_step_schedule(q: float, r: float, dt: float, P: np.ndarray, jerk_mm_s3:
         P = Pp - np.outer(K, Pp[0, :])
         Ks.append((float(K[0]), float(K[1]), float(K[2]), float(K[3])))
         Ss.append(math.sqrt(S))
+        Ps.append(P)
         if all(abs(k - ks) <= rtol * abs(ks) for k, ks in zip(Ks[-1], K_ss)):
             break
     Ks.append(K_ss)
     Ss.append(Ss[-1])
-    return Ks, Ss
+    Ps.append(Ps[-1])
+    return Ks, Ss, Ps
+
+
+def jerk_step_fit(tau_s: np.ndarray, res_mm: np.ndarray, P_w: np.ndarray, r: float,
+                  onsets_s: np.ndarray, j0: float, jerk_max: float
+                  ) -> tuple[float, float, float, np.ndarray]:
+    """Eq. 2.8: the generalized likelihood ratio of one jerk step in a window of samples.
+
+    ``tau_s``: the samples' instants after the window's start state x_w [s]; ``res_mm``: the
+    samples minus x_w's constant-jerk prediction [mm]; ``P_w``: the covariance of x_w's
+    error (the prior of its correction delta); ``r``: the measurement variance [mm^2];
+    ``onsets_s``: the candidate onsets theta [s]; ``j0``: x_w's jerk; ``jerk_max``: the
+    frame's JerkMax (the jerk after the step stays within it).  Two hypotheses per onset,
+    fitted by least squares with the prior on delta: the jerk steps by a free dj (limited
+    so that |j0 + delta_j + dj| <= jerk_max), or it returns to 0 (an S-curve's phases end
+    at jerk 0), taken unless the free step fits better by ``GLR_ZERO_PENALTY``.  Returns
+    (the best onset's statistic [chi^2, twice the log-likelihood ratio against no step],
+    theta [s], dj [mm/s^3], delta (4,))."""
+    A = np.stack([np.ones_like(tau_s), tau_s, tau_s * tau_s / 2.0, tau_s ** 3 / 6.0], axis=1)
+    Pi = np.linalg.inv(P_w)
+    M0i = np.linalg.inv(A.T @ A / r + Pi)
+    b0 = A.T @ res_mm / r
+    g = M0i @ b0  # delta without a step
+    d = np.maximum(tau_s[None, :] - onsets_s[:, None], 0.0)
+    S = d * d * d / 6.0  # the step's signature per onset, per unit dj
+    W = S @ A / r
+    numer = S @ res_mm / r - W @ g
+    denom = np.maximum((S * S).sum(axis=1) / r - np.einsum("ij,jk,ik->i", W, M0i, W),
+                       1e-300)
+    jb = j0 + g[3]
+    djs = np.clip(numer / denom, -jerk_max - jb, jerk_max - jb)
+    stat = 2.0 * djs * numer - djs * djs * denom
+    b = int(np.argmax(stat))
+    dj = float(djs[b])
+    best = (float(stat[b]), float(onsets_s[b]), dj, M0i @ (b0 - W[b] * dj))
+    if j0 == 0.0:
+        return best
+    # back to jerk 0 at theta: res = A delta - (j0 + delta_j) S_theta, one fit per onset
+    Az = np.broadcast_to(A, (len(onsets_s),) + A.shape).copy()
+    Az[:, :, 3] -= S
+    rz = res_mm[None, :] + j0 * S
+    bz = np.einsum("tni,tn->ti", Az, rz) / r
+    dz = np.linalg.solve(np.einsum("tni,tnk->tik", Az, Az) / r + Pi, bz[:, :, None])[:, :, 0]
+    statz = (res_mm @ res_mm / r - b0 @ g) - ((rz * rz).sum(axis=1) / r
+                                               - np.einsum("ti,ti->t", bz, dz))
+    bz_ = int(np.argmax(statz))
+    if statz[bz_] >= best[0] - GLR_ZERO_PENALTY:
+        return (float(statz[bz_]), float(onsets_s[bz_]), -(j0 + float(dz[bz_, 3])),
+                dz[bz_])
+    return best
 
 
 def _low_gain(j: float, ea: float, ev: float, ep: float, w: float, lo: float,
@@ -400,7 +469,11 @@ class MasterConditioner:
         self._K, P = steady_state(q, r, T)
         # eq. 2.7: the gains after a detected jerk step, run down to the steady state; the
         # detector's thresholds per step of that schedule
-        Ks, sd = jerk_step_schedule(q, r, T, P, params.frame.jerk)
+        Ks, sd, self._Ps = jerk_step_schedule(q, r, T, P, params.frame.jerk)
+        #: the jerk-step fit's window [samples] (eq. 2.8)
+        self._nwin = max(8, round(GLR_WINDOW_S / T))
+        #: jerk steps confirmed by the fit (statistics; n_jerk_steps counts every detection)
+        self.n_jerk_fits = 0
         lam = self._lam = math.exp(-T / JERK_STEP_MEMORY_S)
         self._lam1 = 1.0 - lam
         c = params.jerk_step_sigma * math.sqrt((1.0 - lam) / (1.0 + lam))
@@ -469,6 +542,9 @@ class MasterConditioner:
         self._i = len(self._sched) - 1
         self._s = 0.0  # the jerk-step detector's statistic [mm]
         self.lost = False
+        #: accepted samples since the last detection, at most 2 windows (eq. 2.8): (cycle,
+        #: offset [s], z [mm], the state after it, the schedule's step of its gain)
+        self._hist: list[tuple[int, float, float, tuple[float, float, float, float], int]] = []
 
     # -- the estimator ------------------------------------------------------------------
     @staticmethod
@@ -506,9 +582,19 @@ class MasterConditioner:
                 if self._bad >= self.params.max_outliers:
                     return EventKind.LOST, innov
                 return EventKind.OUTLIER, innov
+            i = self._i
             K = self._gain(innov)
+            if K is None:  # a jerk step (eq. 2.8)
+                jump = self._jerk_step(z, ts, xp, innov)
+                self._bad = 0
+                self._n += 1
+                return EventKind.JERK_STEP, jump
             self._x = (xp[0] + K[0] * innov, xp[1] + K[1] * innov, xp[2] + K[2] * innov,
                        xp[3] + K[3] * innov)
+            hist = self._hist
+            hist.append((ts[0], ts[1], z, self._x, i))
+            if len(hist) > 2 * self._nwin:
+                del hist[:self._nwin]
         else:  # warm-up: the full filter from the wide prior
             F = _f_matrix(dt)
             P = F @ self._P @ F.T + _q_matrix(self._q_warm, dt)
@@ -533,18 +619,67 @@ class MasterConditioner:
         self._t_acc = ts
         return None, innov
 
-    def _gain(self, innov: float) -> tuple[float, float, float, float]:
-        """Eq. 2.7: the gain for an accepted sample of innovation ``innov`` [mm]; detects a
-        jerk step (the schedule starts again) and moves the schedule on."""
+    def _gain(self, innov: float) -> tuple[float, float, float, float] | None:
+        """Eq. 2.7: the gain for an accepted sample of innovation ``innov`` [mm] and the
+        schedule moved on; None: a jerk step is detected (``_jerk_step``)."""
         g = self._sched[self._i]
         s = self._lam * self._s + self._lam1 * innov
         if abs(s) > g[4]:
-            g = self._sched[0]
-            s = 0.0
-            self.n_jerk_steps += 1
+            return None
         self._s = s
         self._i = g[5]
         return g[0], g[1], g[2], g[3]
+
+    def _jerk_step(self, z: float, ts: tuple[int, float],
+                   xp: tuple[float, float, float, float], innov: float) -> float:
+        """Eq. 2.8: a detected jerk step at the sample z [mm] taken at ``ts`` (prediction
+        ``xp``, innovation ``innov``).  The jerk step is fitted in the window since the last
+        detection (``jerk_step_fit``); confirmed, the state becomes the fit's (the belt's
+        motion revised back to the step's onset), else the filter is re-opened (eq. 2.7).
+        Either way the filter's gain schedule starts again and the output (eq. 4.5) takes
+        the estimate's jump at once: the revision is handed on, not followed at the belt's
+        jerk."""
+        self.n_jerk_steps += 1
+        self._s = 0.0
+        T = self.T
+        g = self._sched[0]
+        K0, K1, K2, K3 = g[0], g[1], g[2], g[3]
+        gi = self._sched[self._i]  # the jump's base: what the current gain would have given
+        old = (xp[0] + gi[0] * innov, xp[1] + gi[1] * innov, xp[2] + gi[2] * innov,
+               xp[3] + gi[3] * innov)
+        new = (xp[0] + K0 * innov, xp[1] + K1 * innov, xp[2] + K2 * innov, xp[3] + K3 * innov)
+        h = self._hist
+        if len(h) >= 6:
+            kw, ow, _, xw, iw = h[-min(len(h), self._nwin)]
+            w = h[-min(len(h), self._nwin) + 1:]
+            tau = np.array([(e[0] - kw) * T + (e[1] - ow) for e in w]
+                           + [(ts[0] - kw) * T + (ts[1] - ow)])
+            zs = np.array([e[2] for e in w] + [z])
+            pw, vw, aw, jw = xw
+            res = zs - (pw + vw * tau + aw * tau * tau / 2.0 + jw * tau ** 3 / 6.0)
+            stat, th, dj, dl = jerk_step_fit(tau, res, self._Ps[iw], self._r,
+                                             np.arange(0.0, tau[-1], T / 2.0), jw, self._J)
+            if stat >= GLR_CONFIRM:
+                t = float(tau[-1])
+                p, v, a, j = self._predict((pw + dl[0], vw + dl[1], aw + dl[2], jw + dl[3]), t)
+                e = t - th
+                new = (p + dj * e ** 3 / 6.0, v + dj * e * e / 2.0, a + dj * e, j + dj)
+                self.n_jerk_fits += 1
+        self._x = new
+        self._tx = self._t_acc = ts
+        self._i = g[5]
+        h.clear()
+        h.append((ts[0], ts[1], z, new, 0))
+        if self._y is None:
+            return 0.0
+        # eq. 4.5: the output takes the jump (at its own instant, the step's start), within
+        # the frame's velocity and acceleration
+        d = self._predict((new[0] - old[0], new[1] - old[1], new[2] - old[2], new[3] - old[3]),
+                          self._dt((self.k - 1, self._lead_s), ts) - T)
+        yp, yv, ya = self._y
+        V, A = self._V, self._A
+        self._y = (yp + d[0], max(-V, min(V, yv + d[1])), max(-A, min(A, ya + d[2])))
+        return d[0]
 
     # -- the cyclic call ----------------------------------------------------------------
     def update(self, position_mm: float | None, time_offset_s: float = 0.0) -> ConditionedMaster:
@@ -573,16 +708,27 @@ class MasterConditioner:
                 g = self._sched[self._i]
                 s = self._lam * self._s + self._lam1 * innov
                 if s > g[4] or -s > g[4]:
-                    g = self._sched[0]
-                    s = 0.0
-                    self.n_jerk_steps += 1
+                    # a jerk step (eq. 2.8): the revised belt, its jump taken by the output
+                    jump = self._jerk_step(position_mm, (kx, off), (p, v, a, j), innov)
+                    self._bad = 0
+                    self._n += 1
+                    self.n_accepted += 1
+                    self._kinematic((k, self._lead_s))
+                    p, v, a = self._y
+                    return ConditionedMaster(p, v, a, self._yj, MasterStatus.OK,
+                                             ConditioningEvent(EventKind.JERK_STEP, k, jump))
                 self._s = s
+                i = self._i
                 K0, K1, K2, K3, _, self._i = g
                 self._x = (p + K0 * innov, v + K1 * innov, a + K2 * innov, j + K3 * innov)
                 self._tx = self._t_acc = (kx, off)
                 self._bad = 0
                 self._n += 1
                 self.n_accepted += 1
+                hist = self._hist
+                hist.append((kx, off, position_mm, self._x, i))
+                if len(hist) > 2 * self._nwin:
+                    del hist[:self._nwin]
                 # the output law (eq. 4.1), from the estimate at the step's start (lead - 1)
                 dt = (self._lead_s - off) + (self._latency - 1) * T
                 p += K0 * innov
@@ -626,8 +772,10 @@ class MasterConditioner:
             ts = (k - self._latency, float(time_offset_s))
             was_ready = self._n >= self._warmup
             kind, innov = self._measure(float(position_mm), ts)
-            if kind is None:
+            if kind is None or kind == EventKind.JERK_STEP:
                 self.n_accepted += 1
+                if kind is not None:
+                    event = ConditioningEvent(kind, k, innov)
                 if not was_ready and self._n >= self._warmup:
                     event = ConditioningEvent(EventKind.READY, k)
             else:

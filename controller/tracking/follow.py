@@ -36,6 +36,8 @@ from .vec import Vec
 _S = 1e-3
 #: share of a limit kept when the master itself uses all of it (no bound of zero width)
 _MIN_SHARE = 0.05
+#: share of J kept in closing a gap to a master with a jerk, for its change between samples
+_JERK_CHANGE_SHARE = 0.03
 
 
 def _norm(x: Vec) -> float:
@@ -318,7 +320,13 @@ class SyncFollower:
         V, A, J = self._V, self._A, self._J
         bv = max(V - _norm(mv), _MIN_SHARE * V) * r * s
         ba = max(A - _norm(ma), _MIN_SHARE * A) * r * s
-        bj = max(J - _norm(mj), _MIN_SHARE * J) * r * s
+        nj = _norm(mj)
+        if nj > 0.0:
+            # a master with a jerk (a conditioned one) changes it from sample to sample;
+            # the positions before this step were made with the last one, so a share of J
+            # is kept for that change (eq. 6.2; an ideal master, jerk 0, plans as before)
+            nj += _JERK_CHANGE_SHARE * J
+        bj = max(J - nj, _MIN_SHARE * J) * r * s
         inp = self._inp
         inp.current_position = [(p[i] - mbp[i]) * s for i in rng]
         inp.current_velocity = [(v[i] - mbv[i]) * s for i in rng]

@@ -408,6 +408,7 @@ class OptimalPlanner:
         self._V, self._A, self._J = lim.vel * k, lim.acc * k, lim.jerk * k
         self._reserve = None
         self._jm = 0.0
+        self._mprev: tuple | None = None  # the master of the last sample (mp, mv, ma)
 
     def step(self, mp: Vec, mv: Vec, ma: Vec,
              mj: Vec | None = None) -> tuple[Vec, Vec, Vec, bool]:
@@ -426,6 +427,8 @@ class OptimalPlanner:
                 jm += x * x
             jm = math.sqrt(jm)
         self._jm = jm
+        prev = self._mprev
+        self._mprev = (mp, mv, ma)
         plan = self.plan
         if plan is not None and not self.replan_always:
             j = plan.k + 1
@@ -441,6 +444,21 @@ class OptimalPlanner:
                     dv2 += (y - v0 - a0 * t) ** 2
                     da2 += (z - a0) ** 2
                 ok = dv2 <= rv * rv and da2 <= ra * ra and jm <= rj
+                if ok and prev is not None and mj is not None:
+                    # and the master moved on from the last sample with its jerk: a master
+                    # that jumped (a conditioned one revised at a jerk step, eq. 2.8 of
+                    # master-conditioning.md) left the plan: plan again from the last
+                    # setpoint, which closes the jump within the limits (eq. 6.3)
+                    T = self.T
+                    h, h3 = 0.5 * T * T, T * T * T / 6.0
+                    J = self.limits.jerk * _RESERVE
+                    tp, tv, ta = J * h3, J * h, J * T
+                    for x, y, z, jx, p1, v1, a1 in zip(mp, mv, ma, mj, *prev):
+                        if (abs(x - p1 - v1 * T - a1 * h - jx * h3) > tp
+                                or abs(y - v1 - a1 * T - jx * h) > tv
+                                or abs(z - a1 - jx * T) > ta):
+                            ok = False
+                            break
             else:
                 ok = True
                 for x, y, z, p0, v0, a0 in zip(mp, mv, ma, plan.mp0, plan.mv0, plan.ma0):
