@@ -35,9 +35,12 @@ Issue 12's (printed PASS/FAIL for every period): missed deadlines <= 2 x the flo
 same run (at least 2), over the whole run; the real-time run places every item the stepped
 run of the same workload places (outcome per item compared: placed or missed, every item
 triggered at least 3 s before the end); with ``--baseline``, controller CPU per cycle at
-2 ms <= 1/3 of the earlier checkout's.  On a quiet 2-core machine::
+2 ms <= 1/3 of the earlier checkout's.  The code the issue measured is ``d554ece`` (the
+commit it was filed at); its cycle.py runs as the baseline as it is (options it does not
+know, such as ``--cpu``, are left out: it inherits this process's CPU affinity and
+scheduling).  On a quiet 2-core machine::
 
-    git clone -q REPO /tmp/cyc-before && git -C /tmp/cyc-before checkout -q 8e55a73
+    git clone -q REPO /tmp/cyc-before && git -C /tmp/cyc-before checkout -q d554ece
     python benchmarks/cycle.py --periods 2 1 --seconds 60 --baseline /tmp/cyc-before \
         --json cycle.json
 """
@@ -314,21 +317,16 @@ def run_baseline(args, argv) -> dict:
     base = Path(args.baseline).resolve()
     out = Path(tempfile.mkdtemp()) / "baseline.json"
     opts = list(argv if argv is not None else sys.argv[1:])
-    drop = {"--baseline", "--json"}
-    clean, skip = [], False
-    for a in opts:
-        if skip:
-            skip = False
-            continue
-        if a in drop:
-            skip = True
-            continue
-        if any(a.startswith(d + "=") for d in drop):
-            continue
-        clean.append(a)
     env = dict(os.environ, PYTHONPATH=str(base))
+    script = base / "benchmarks" / "cycle.py"
+    if not script.is_file():
+        raise SystemExit(f"--baseline {base}: no benchmarks/cycle.py there")
+    clean = _baseline_options(opts, _options_of(script, env))
+    # (--cpu and --fifo act on this process before the baseline starts: its process inherits
+    #  the CPU affinity and the scheduling policy, so an older cycle.py without them runs
+    #  under the same conditions)
     print(f"== baseline: {base} (git {_git_head(base)}) ==", flush=True)
-    r = subprocess.run([sys.executable, str(base / "benchmarks" / "cycle.py"), *clean,
+    r = subprocess.run([sys.executable, str(script), *clean,
                         "--json", str(out)], env=env, cwd=str(base), text=True,
                        capture_output=True)
     print("\n".join(line for line in r.stdout.splitlines() if not line.startswith("[")))
@@ -337,6 +335,37 @@ def run_baseline(args, argv) -> dict:
     data = json.loads(out.read_text())
     data["_head"] = _git_head(base)
     return data
+
+
+def _options_of(script: Path, env: dict[str, str]) -> set[str]:
+    """The long options an (earlier) cycle.py accepts, from its --help."""
+    import re
+    import subprocess
+    r = subprocess.run([sys.executable, str(script), "--help"], env=env, cwd=str(script.parents[1]),
+                       capture_output=True, text=True)
+    if r.returncode != 0:
+        raise SystemExit(f"baseline benchmark {script} --help failed: {r.stderr[-2000:]}")
+    return set(re.findall(r"(--[a-z][a-z0-9-]*)", r.stdout))
+
+
+def _baseline_options(opts: list[str], accepted: set[str]) -> list[str]:
+    """``opts`` for the baseline: without --baseline and --json (set by run_baseline) and
+    without the options the baseline does not know (with their values), e.g. --cpu, which an
+    earlier cycle.py lacks (this process applied it already; the baseline inherits it)."""
+    clean: list[str] = []
+    skipping = False
+    for a in opts:
+        if a.startswith("--"):
+            name = a.split("=", 1)[0]
+            skipping = name in ("--baseline", "--json") or name not in accepted
+            if not skipping:
+                clean.append(a)
+            elif "=" in a:
+                skipping = False  # (its value came with it)
+            continue
+        if not skipping:
+            clean.append(a)
+    return clean
 
 
 def _git_head(path: Path) -> str:
