@@ -97,6 +97,7 @@ from dataclasses import dataclass
 from enum import IntEnum, StrEnum
 from typing import Any, Iterable, Mapping, Sequence, overload
 
+from ..tracking.values import fast_init
 from ..errors import CantrackError, ParameterError, StateError
 from ..limits import CartesianLimits, Limits
 from ..tracking import Imfs, Mode, MotionState, TrackError, TrackerParams, TrackState
@@ -149,6 +150,7 @@ class EventKind(StrEnum):
     TRIGGER_REJECTED = "trigger_rejected"  #: a trigger the buffer refused (the simulator)
 
 
+@fast_init
 @dataclass(frozen=True, slots=True)
 class Event:
     """Something that happened at ``sample`` (``kind``: :class:`EventKind`).  ``code``: 30238
@@ -163,6 +165,7 @@ class Event:
     message: str = ""
 
 
+@fast_init
 @dataclass(frozen=True, slots=True)
 class RobotOutput:
     """One sample of a robot group.  ``setpoint``: world TCP (``base:Robot_real:tool``);
@@ -235,7 +238,7 @@ class FrameLink:
     def track_state(self) -> TrackState:
         """The tracker's state, SYNCED only when the swing channel (slave = 3) is synced too."""
         st = self.tracker.state
-        if st == TrackState.SYNCED and self.swing is not None and \
+        if self.swing is not None and st == TrackState.SYNCED and \
                 self.swing.state == TrackState.SYNCING:
             return TrackState.SYNCING
         return st
@@ -647,8 +650,13 @@ class RobotGroup:
     @property
     def imfs(self) -> Imfs:
         """``<robot>.IsMovingFrameSynchronized`` (Functionality Changes)."""
-        leaving = any(lk.leaving for lk in self.links)
-        active = self._active()
+        leaving = False
+        active = None  # (any() and _active() in one pass over the links)
+        for lk in self.links:
+            if lk.leaving:
+                leaving = True
+            elif active is None:
+                active = lk
         if leaving and active is not None:
             return Imfs.HANDOFF
         if leaving:

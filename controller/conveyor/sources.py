@@ -27,6 +27,7 @@ import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Callable, Protocol, Sequence
 
+from ..tracking.values import fast_init
 from ..errors import ParameterError, StateError
 from ..tracking import MasterEstimator, unwrap_counts
 from .location import vec3
@@ -37,6 +38,7 @@ if TYPE_CHECKING:
     from .robot import RobotGroup
 
 
+@fast_init
 @dataclass(frozen=True, slots=True)
 class SourceState:
     """A master source value [source unit] and its rates [unit/s, unit/s^2]."""

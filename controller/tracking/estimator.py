@@ -22,7 +22,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .values import fast_init
 
+
+@fast_init
 @dataclass(frozen=True, slots=True)
 class MasterEstimate:
     """Estimated master state [mm, mm/s, mm/s^2, mm/s^3] (or deg...) at the evaluation time.

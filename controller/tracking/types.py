@@ -10,9 +10,10 @@ Spec: docs/spec/tracking.md (the softMC tracking algorithm; states #2.1, modes #
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, fields, replace
+from dataclasses import dataclass, field, replace
 from enum import IntEnum
 
+from .values import fast_init
 from ..errors import ParameterError
 from ..limits import Limits
 
@@ -276,6 +277,7 @@ class EffectiveLimits:
     desync_rot: Limits
 
 
+@fast_init
 @dataclass(frozen=True, slots=True)
 class MotionState:
     """Position, velocity and acceleration of a Cartesian point plus one tool-axis angle.
@@ -316,35 +318,7 @@ class MotionState:
         )
 
 
-# MotionState.__init__ through the slots' descriptors.  The dataclass's generated __init__
-# of a frozen class sets each field with object.__setattr__ (its own __setattr__ refuses):
-# ~0.1 us a field, ~0.9 us a MotionState, which the tracker builds once or twice per sample.
-# This one takes the same parameters with the same defaults and builds the same object (no
-# validation in either), ~2.5x faster; assignment stays refused (FrozenInstanceError).
-_set_pos, _set_vel, _set_acc, _set_ang, _set_ang_vel, _set_ang_acc, _set_jerk, \
-    _set_ang_jerk = (MotionState.__dict__[f.name].__set__ for f in fields(MotionState))
-assert [(f.name, f.default) for f in fields(MotionState)] == [
-    ("pos", ZERO3), ("vel", ZERO3), ("acc", ZERO3), ("ang", 0.0), ("ang_vel", 0.0),
-    ("ang_acc", 0.0), ("jerk", ZERO3), ("ang_jerk", 0.0)]
-
-
-def _motion_state_init(self: MotionState, pos: Vec3 = ZERO3, vel: Vec3 = ZERO3,
-                       acc: Vec3 = ZERO3, ang: float = 0.0, ang_vel: float = 0.0,
-                       ang_acc: float = 0.0, jerk: Vec3 = ZERO3, ang_jerk: float = 0.0) -> None:
-    _set_pos(self, pos)
-    _set_vel(self, vel)
-    _set_acc(self, acc)
-    _set_ang(self, ang)
-    _set_ang_vel(self, ang_vel)
-    _set_ang_acc(self, ang_acc)
-    _set_jerk(self, jerk)
-    _set_ang_jerk(self, ang_jerk)
-
-
-_motion_state_init.__qualname__ = "MotionState.__init__"
-MotionState.__init__ = _motion_state_init  # type: ignore[method-assign]
-
-
+@fast_init
 @dataclass(frozen=True, slots=True)
 class TrackerOutput:
     """What one tracker update produces (one sample)."""

@@ -284,7 +284,7 @@ class PickPlace:
         if self.robot is not None:
             for link in self.robot.links:
                 if not link.done:
-                    return TrackState(link.tracker.state)
+                    return link.tracker.state
         return TrackState.OFF
 
     def start(self, start: SourceStart) -> SourceStatus:
@@ -567,7 +567,7 @@ class PickPlace:
             return SourceStatus(items_detected=detected, items_missed=self.missed,
                                 triggers_dropped=self.triggers_dropped,
                                 items_ignored=self.ignored)
-        return SourceStatus(self.track_state, Imfs(self.imfs), tr.state, tr.imfs, tr.error,
+        return SourceStatus(self.track_state, self.robot.imfs, tr.state, tr.imfs, tr.error,
                             detected, self.missed, self.triggers_dropped, self.ignored)
 
     def _master_lost(self) -> None:

@@ -11,8 +11,7 @@ them in the source's context).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, NamedTuple
 
 from ..config.concise import effective_pdos
 from ..io.transport import Transport
@@ -26,16 +25,19 @@ if TYPE_CHECKING:
     from ..config import ControllerConfig
 
 
-@dataclass(slots=True)
-class DriveInput:
+class DriveInput(NamedTuple):
+    """One TPDO's snapshot: 6041h, 6064h [counts], when it came [ns], in which cycle, and the
+    402 state the statusword shows (decoded once, here; None: an invalid pattern)."""
+
     statusword: int
     actual: int
     t_ns: int
     cycle: int
+    state: State | None
 
-    @property
-    def state(self) -> State | None:
-        return cia402.decode_statusword(self.statusword)
+
+#: the 402 state of the statusword's bits 0-3, 5, 6 (``cia402.decode_statusword`` inlined)
+_STATE_OF = cia402.STATE_OF_BITS.__getitem__
 
 
 def _configured(cfg: ControllerConfig, node: str, index: int, sub: int) -> float:
@@ -69,7 +71,9 @@ class AxisIO:
         self._sw_pos = self.tpdo.position(0x6041)
         self._act_pos = self.tpdo.position(0x6064)
         self._out = [0] * len(self.rpdo.objects)
+        self._cw_target = (self._cw_pos, self._target_pos) == (0, 1) and len(self._out) == 2
         self.transport = transport
+        self._send = transport.send
         self._pack = self.rpdo.struct.pack
         self._unpack = self.tpdo.struct.unpack_from
         #: the drive's quick-stop deceleration 6085h [mm/s^2 | deg/s^2] (as configured)
@@ -107,7 +111,8 @@ class AxisIO:
                 can_id, data, self._tp_size, self._tp_what, t_ns):
             return
         v = self._unpack(data)
-        self.input = DriveInput(v[self._sw_pos], v[self._act_pos], t_ns, self.cycle)
+        sw = v[self._sw_pos]
+        self.input = DriveInput(sw, v[self._act_pos], t_ns, self.cycle, _STATE_OF(sw & 0x6F))
 
     def _on_inputs(self, can_id: int, data: bytes, t_ns: int) -> None:
         self.inputs = int(self._di.unpack(data)[self._di_pos])
@@ -120,9 +125,12 @@ class AxisIO:
         return self.input is not None and self.input.cycle == cycle
 
     def send(self, controlword: int, target: int) -> None:
-        out = self._out
-        out[self._cw_pos] = controlword
-        out[self._target_pos] = target
-        self.transport.send(self.rpdo_cob, self._pack(*out))
+        if self._cw_target:  # the RPDO maps 6040h, 607Ah and nothing else
+            self._send(self.rpdo_cob, self._pack(controlword, target))
+        else:
+            out = self._out
+            out[self._cw_pos] = controlword
+            out[self._target_pos] = target
+            self._send(self.rpdo_cob, self._pack(*out))
         self.controlword = controlword
         self.target = target

@@ -51,7 +51,7 @@ from ..config.busload import BusLoad, bus_load, check_bus_load
 from ..config.reactions import Disturbance, Reaction
 from ..io.transport import GuardedTransport, Transport
 from ..protocol import cia402
-from ..protocol.cia402 import State, decode_statusword
+from ..protocol.cia402 import State
 from ..protocol.frames import FrameHygiene
 from ..protocol.sdo import SdoClient
 from .axisio import AxisIO
@@ -579,16 +579,11 @@ class Controller:
 
     def _drive_views(self, k: int) -> tuple[DriveView, ...]:
         """The drives as this cycle's TPDOs showed them (the source's context)."""
-        out = []
-        for a in self.axes:
-            inp = a.input
-            if inp is None:
-                out.append(DriveView(a.axis, None, 0, None, False, a.inputs, a.probe))
-            else:
-                out.append(DriveView(a.axis, inp.state, inp.statusword,
-                                     a.scale.from_counts(inp.actual), inp.cycle == k,
-                                     a.inputs, a.probe))
-        return tuple(out)
+        return tuple([DriveView(a.axis, None, 0, None, False, a.inputs, a.probe)
+                      if (inp := a.input) is None else
+                      DriveView(a.axis, inp.state, inp.statusword,
+                                a.scale.from_counts(inp.actual), inp.cycle == k, a.inputs,
+                                a.probe) for a in self.axes])
 
     def _sdo(self, i: int) -> SdoClient:
         """The SDO client of drive ``i`` (the sources' transfers)."""
@@ -693,15 +688,13 @@ class Controller:
         counts = self.counts.to_counts(joints)
         # a source that asked for the quick stop says what each drive gets in this cycle
         # (axis setpoints); a tool setpoint: the quick stop to all
-        stopping = self.phase is Phase.STOPPING
-        for i, (a, c) in enumerate(zip(self.axes, counts)):
-            if commands_out is not None:
-                cw = commands_out[i].controlword
-            elif stopping:
-                cw = cia402.CW_QUICK_STOP_CMD
-            else:
-                cw = cia402.CW_ENABLE
-            a.send(cw, c)
+        if commands_out is not None:
+            for i, (a, c) in enumerate(zip(self.axes, counts)):
+                a.send(commands_out[i].controlword, c)
+        else:
+            cw = cia402.CW_QUICK_STOP_CMD if self.phase is Phase.STOPPING else cia402.CW_ENABLE
+            for a, c in zip(self.axes, counts):
+                a.send(cw, c)
         if out.target is not None:
             # the tracked target (relative mode: the master plus the offset kept at engage)
             self._master_for[k + self.master.lead] = out.target
@@ -942,7 +935,7 @@ class Controller:
                 continue
             silent[i] = 0
             sw = inp.statusword
-            st = decode_statusword(sw)
+            st = inp.state
             if st is State.OPERATION_ENABLED and not sw & cia402.SW_FOLLOWING_ERROR:
                 continue  # the running drive: nothing to report
             if st in _FAULT_STATES:

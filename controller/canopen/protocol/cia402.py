@@ -99,12 +99,12 @@ def _decode(statusword: int) -> State | None:
 
 
 #: every mask of _DECODE is within 6Fh: the state of each pattern of those bits, once
-_STATE_OF_BITS = tuple(_decode(bits) for bits in range(0x70))
+STATE_OF_BITS: tuple[State | None, ...] = tuple(_decode(bits) for bits in range(0x70))
 
 
 def decode_statusword(statusword: int) -> State | None:
     """The state a statusword shows, or None for an invalid pattern."""
-    return _STATE_OF_BITS[statusword & 0x6F]
+    return STATE_OF_BITS[statusword & 0x6F]
 
 
 # -- controlword commands (mask, value) -----------------------------------------------------

@@ -145,6 +145,7 @@ class PdoChannel:
     started: bool = True  # TPDO with a SYNC start value: False until the counter matches
     dirty: bool = True  # TPDO: a mapped object changed since the last send
     sent: int = 0
+    size: int = 0  # [bytes] the mapping's length
 
 
 @dataclass
@@ -248,6 +249,10 @@ class SlaveEngine:
         self.heartbeat_producer = heartbeat_producer
         self._vars: dict[tuple[int, int], ODVariable] = {}
         self._codecs: dict[tuple[int, int], tuple[struct.Struct | None, ODVariable]] = {}
+        self._packers: dict[tuple[int, int], tuple[Callable[[Any], bytes], bool]] = {}
+        #: (the raw 1019h the SYNC length was last checked against, the length it wants;
+        #: None: no 1019h) -- see _sync_length_ok
+        self._sync_len: tuple[bytes | None, int | None] | None = None
         self._changed: set[tuple[int, int]] = set()  # objects changed since the last service
         self.node = _OdNode(self, self.node_id, self.od)
         self.sdo = _SdoServer(self, self.node)
@@ -320,13 +325,24 @@ class SlaveEngine:
         st, v = self._codec(index, sub)
         return st.unpack(raw)[0] if st is not None else v.decode_raw(raw)
 
+    def _packer(self, key: tuple[int, int]) -> tuple[Callable[[Any], bytes], bool]:
+        """How :meth:`encode` makes an object's bytes: (pack, value made an int first)."""
+        st, v = self._codec(*key)
+        c = (v.encode_raw, False) if st is None else (st.pack, v.data_type not in (REAL32,
+                                                                                 REAL64))
+        self._packers[key] = c
+        return c
+
     def store(self, index: int, sub: int, value: Any) -> None:
         """Set an object's value from the application (no SDO checks, no callbacks)."""
-        raw = self.encode(index, sub, value)
+        key = (index, sub)
+        c = self._packers.get(key)  # (encode() with its lookups made once per object)
+        pack, whole = c if c is not None else self._packer(key)
+        raw = pack(int(value)) if whole else pack(value)
         d = self.node.data_store.setdefault(index, {})
         if d.get(sub) != raw:
             d[sub] = raw
-            self._changed.add((index, sub))
+            self._changed.add(key)
 
     def raw(self, index: int, sub: int = 0) -> bytes:
         """An object's current value as bytes (stored, else the EDS default)."""
@@ -657,7 +673,7 @@ class SlaveEngine:
                           int(self.load(comm, 1)) & 0x7FF, int(self.load(comm, 2)), inhibit,
                           event, start, mapping,
                           objects=frozenset((i, s) for i, s, _ in mapping if i >= 0x1000),
-                          started=not start)
+                          started=not start, size=sum(bits for _, _, bits in mapping) // 8)
 
     def _on_rpdo(self, can_id: int, data: bytes, t: Any) -> None:
         if not self.listening() or self.nmt_state is not Nmt.OPERATIONAL:
@@ -671,8 +687,7 @@ class SlaveEngine:
             self._apply_rpdo(pdo, bytes(data))
 
     def _apply_rpdo(self, pdo: PdoChannel, data: bytes) -> None:
-        need = sum(bits for _, _, bits in pdo.mapping) // 8
-        if len(data) < need:
+        if len(data) < pdo.size:
             return  # (CiA 301: a too short PDO is not processed; EMCY 8210h in real nodes)
         values: list[tuple[int, int, bytes]] = []
         offset = 0
@@ -691,10 +706,16 @@ class SlaveEngine:
         self.on_rpdo(pdo.number, pdo.objects)
 
     def tpdo_data(self, pdo: PdoChannel) -> bytes:
-        out = bytearray()
+        store = self.node.data_store
+        parts = []
         for index, sub, bits in pdo.mapping:
-            out += self.raw(index, sub) if index >= 0x1000 else bytes(bits // 8)
-        return bytes(out)
+            if index < 0x1000:
+                parts.append(bytes(bits // 8))  # a dummy entry
+                continue
+            d = store.get(index)  # (raw() written out: the stored value, else the default)
+            raw = d.get(sub) if d is not None else None
+            parts.append(raw if raw is not None else self.raw(index, sub))
+        return b"".join(parts)
 
     def _send_tpdo(self, pdo: PdoChannel, data: bytes, now: int) -> None:
         self._send("pdo", pdo.cob_id, data)
@@ -715,10 +736,14 @@ class SlaveEngine:
         """CiA 301: with 1019h > 0 a SYNC carries the counter (1 byte), else none; a consumer
         that gets another length sends EMCY 8240h (unexpected SYNC data length) and, as
         CANopenNode does, enters pre-operational.  (Objects without 1019h: not checked.)"""
-        if not self.has(0x1019):
-            return True
-        want = 1 if int(self.load(0x1019, 0)) else 0
-        if n == want:
+        d = self.node.data_store.get(0x1019)
+        raw = d.get(0) if d is not None else None
+        c = self._sync_len
+        if c is None or c[0] is not raw:  # (looked up again when 1019h is written)
+            want = (1 if int(self.load(0x1019, 0)) else 0) if self.has(0x1019) else None
+            c = self._sync_len = (raw, want)
+        want = c[1]
+        if want is None or n == want:
             return True
         if self.nmt_state is Nmt.OPERATIONAL:
             self.send_emcy(EMCY_SYNC_LENGTH)

@@ -4,9 +4,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from ...tracking.values import fast_init
 from ..location import Location, Vec3
 
 
+@fast_init
 @dataclass(frozen=True, slots=True)
 class FramePoint:
     """The moving frame at one sample for one item (``<MF>.here``) and its rates.

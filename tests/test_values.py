@@ -1,0 +1,80 @@
+"""controller.tracking.values.fast_init: the same value objects as the dataclass' own __init__."""
+
+from __future__ import annotations
+
+import dataclasses
+import inspect
+import pickle
+
+import pytest
+
+from controller.tracking import MasterEstimate, MotionState, TrackerOutput
+from controller.tracking.values import fast_init
+
+
+@dataclasses.dataclass(frozen=True, slots=True)
+class Plain:
+    a: float
+    b: tuple[float, ...] = (1.0, 2.0)
+    c: int = 3
+
+
+Fast = fast_init(dataclasses.make_dataclass(
+    "Fast", [("a", float), ("b", tuple, dataclasses.field(default=(1.0, 2.0))),
+             ("c", int, dataclasses.field(default=3))], frozen=True, slots=True))
+
+
+def test_same_signature_values_and_defaults():
+    assert list(inspect.signature(Fast.__init__).parameters) == ["self", "a", "b", "c"]
+    for args, kw in [((0.5,), {}), ((0.5, (3.0,)), {}), ((0.5,), {"c": 7}),
+                     ((), {"a": -1.0, "b": (), "c": 0})]:
+        p, f = Plain(*args, **kw), Fast(*args, **kw)
+        assert dataclasses.astuple(p) == dataclasses.astuple(f)
+    with pytest.raises(TypeError):
+        Fast()  # a required field stays required
+    with pytest.raises(TypeError):
+        Fast(1.0, d=2)
+
+
+def test_still_frozen_equal_hashable_replaceable_picklable():
+    m = MotionState((1.0, 2.0, 3.0), ang=4.0)
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        m.ang = 5.0  # type: ignore[misc]
+    assert m == MotionState((1.0, 2.0, 3.0), (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), 4.0)
+    assert hash(m) == hash(MotionState((1.0, 2.0, 3.0), ang=4.0))
+    assert dataclasses.replace(m, ang=6.0).ang == 6.0
+    assert pickle.loads(pickle.dumps(m)) == m
+    assert MasterEstimate(1.0, 2.0, 3.0).jerk == 0.0
+    assert TrackerOutput(m, *[None] * 4).synchronized_now is False  # type: ignore[arg-type]
+
+
+def test_post_init_runs():
+    seen = []
+
+    @fast_init
+    @dataclasses.dataclass(frozen=True, slots=True)
+    class Checked:
+        x: float
+
+        def __post_init__(self) -> None:
+            seen.append(self.x)
+            if self.x < 0:
+                raise ValueError("negative")
+
+    Checked(2.0)
+    with pytest.raises(ValueError, match="negative"):
+        Checked(-1.0)
+    assert seen == [2.0, -1.0]
+
+
+@pytest.mark.parametrize("make", [
+    lambda: dataclasses.dataclass(slots=True)(type("NotFrozen", (), {"__annotations__": {"x": int}})),
+    lambda: dataclasses.dataclass(frozen=True)(type("NoSlots", (), {"__annotations__": {"x": int}})),
+    lambda: dataclasses.make_dataclass("Factory", [("x", list, dataclasses.field(
+        default_factory=list))], frozen=True, slots=True),
+    lambda: dataclasses.make_dataclass("KwOnly", [("x", int, dataclasses.field(kw_only=True))],
+                                       frozen=True, slots=True),
+])
+def test_refused_where_it_would_differ(make):
+    with pytest.raises(TypeError, match="fast_init"):
+        fast_init(make())
