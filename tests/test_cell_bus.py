@@ -79,15 +79,65 @@ def test_the_cell_runs_on_the_bus_and_ends_cleanly(bus_run):
     assert 0.0 < r1.max_error_mm < 0.01 and 0.0 < r2.max_error_mm < 0.01
 
 
-def test_bus_and_simulator_give_the_same_setpoints_and_items(bus_run):
-    """Bit-identical on the same inputs (see the module docstring)."""
-    cfg, sc, src, ctl = bus_run
+#: robot r2 with a pick program on its frame B2 instead of timed MasterFrame changes: the
+#: bus file's text and the scenario's, each as written there
+PROGRAM = (("        master_frame:\n          - {time_s: 0.5, frame: B2}\n"
+            "          - {time_s: 4.5, frame: none}\n",
+            "        program: {frame: B2, approach_mm: 50, dwell_s: 0.1,\n"
+            "                  place: [1000.0, 300.0, 100.0]}\n"),
+           ("      master_frame:\n        - {time_s: 0.5, frame: B2}\n"
+            "        - {time_s: 4.5, frame: none}\n",
+            "      program: {frame: B2, approach_mm: 50, dwell_s: 0.1,\n"
+            "                place: [1000.0, 300.0, 100.0]}\n"))
+
+
+@pytest.fixture(scope="module")
+def program_run(tmp_path_factory):
+    """The cell with r2 picking by its program (on the bus and in the scenario)."""
+    (b_old, b_new), (s_old, s_new) = PROGRAM
+    d = tmp_path_factory.mktemp("program")
+    # (r2 goes down onto the item at z = 0: its z may go below, as a quick stop from the
+    # descent would)
+    btext = TEXT.replace(b_old, b_new).replace(
+        "z: {node: z2, counts_per_mm: 10000, min: 0, max: 200}",
+        "z: {node: z2, counts_per_mm: 10000, min: -50, max: 200}")
+    stext = SCENARIO.read_text().replace(s_old, s_new)
+    assert btext != TEXT and stext != SCENARIO.read_text()
+    (d / "bus.yml").write_text(btext)
+    (d / "cell.yaml").write_text(stext)
+    cfg = parse_config(btext, str(d / "bus.yml"), base_dir=BUS.parent)
+    sc = load_scenario(d / "cell.yaml")
+    src = CellSource(cfg.tracking.cell, duration_s=sc.duration_s, record=10**6,
+                     keep_inputs=True)
+    return cfg, sc, src, _run(cfg, src)
+
+
+def test_a_robot_with_a_pick_program_on_the_bus(program_run):
+    """r2 runs its pick program on the bus: the type-2 item is caught, picked and placed
+    (the program's place reached), the type-1 item ignored."""
+    cfg, sc, src, ctl = program_run
+    assert ctl.exit_code() == EXIT_OK
+    r2 = src.summaries["r2"]
+    assert (r2.triggered, r2.caught, r2.picked, r2.ignored) == (2, 1, 1, 1)
+    prog = src.run.programs["r2"]
+    assert list(prog.picks) == [2] and not prog.unpicked
+    assert src.traces["r2"].pos[-1] == pytest.approx((1000.0, 300.0, 100.0), abs=1e-6)
+
+
+@pytest.mark.parametrize("which", ["timed", "program"])
+def test_bus_and_simulator_give_the_same_setpoints_and_items(which, request):
+    """Bit-identical on the same inputs (see the module docstring); r2 by timed MasterFrame
+    changes and by its pick program."""
+    cfg, sc, src, ctl = request.getfixturevalue("bus_run" if which == "timed"
+                                                else "program_run")
     tc = cfg.tracking
     assert sc.params == tc.tracker                  # the same tracker for every robot
     assert sc.frames == tc.cell.frames and sc.sensors == tc.cell.sensors
     assert sc.robots == tuple(r.spec for r in tc.cell.robots)
     sim = replay_cell(sc, src.inputs, src.latches)
     assert len(sim.time_s) == src.recorded == sc.n_samples + 1
+    assert {n: p.picks for n, p in src.run.programs.items()} == \
+        {n: tr.picks for n, tr in sim.robots.items() if tr.picks}
     for name, tr in sim.robots.items():
         bus = src.traces[name]
         assert np.array_equal(np.array(bus.pos), tr.setpoint_pos), name
@@ -260,3 +310,26 @@ def test_cantrack_demo_runs_the_cell_in_real_time(tmp_path, capsys):
     assert end["type"] == "end" and end["reactions"] == 0
     assert end["robots"]["r1"]["caught"] == 1 and end["robots"]["r2"]["caught"] == 1
     assert end["timing"]["sync_jitter_us"]["n"] >= 1.5 / 0.010   # measured every cycle
+
+
+def test_a_silent_encoder_desyncs_only_the_robots_on_its_frames():
+    """Belt B's encoder stops sending at 1.0 s: the cycle reports it (master_silent, de-sync)
+    and the source stops r2, which was catching its item on B2 (fed by that encoder); r1 on
+    belt A goes on following; no quick stop, the drives stay enabled to the end."""
+    cfg = load_config(BUS)
+    src = CellSource(cfg.tracking.cell, duration_s=1.9, record=10**6)
+
+    def inject(world):
+        world.at(1.0, lambda: world.device("enc_b").mute_pdos())
+
+    ctl = _run(cfg, src, inject=inject)
+    silent = [e for e in ctl.events if e.kind == "master_silent"]
+    assert len(silent) == 1 and "enc_b" in silent[0].source
+    assert "de-sync" in silent[0].reaction
+    assert ctl.events.quick_stops == 0 and ctl.exit_code() == EXIT_REACTION
+    n0 = silent[0].cycle - src.start_cycle            # (sample n is cycle start + n)
+    r1, r2 = src.traces["r1"], src.traces["r2"]
+    assert len(r1.imfs) > n0 + 100
+    assert all(x == 1 for x in r1.imfs[n0 - 10:])     # r1 synchronised throughout
+    assert src.summaries["r2"].caught == 0 and r2.imfs[-1] != 1
+    assert any(e.kind.value == "leave" for e in r2.events)       # r2's link was left (STOP)
