@@ -333,3 +333,32 @@ def test_a_silent_encoder_desyncs_only_the_robots_on_its_frames():
     assert all(x == 1 for x in r1.imfs[n0 - 10:])     # r1 synchronised throughout
     assert src.summaries["r2"].caught == 0 and r2.imfs[-1] != 1
     assert any(e.kind.value == "leave" for e in r2.events)       # r2's link was left (STOP)
+
+
+def test_a_robot_with_a_tool_axis_keeps_its_angle_without_a_turn(tmp_path):
+    """r1 with a rotary tool axis c (deg) whose drive is at 350 deg: r1 starts there (its
+    start has angle 0 = 360 deg, 10 deg away: a start_pose event) and c stays at 350 deg while
+    it follows (the twist is unwrapped from the drive's angle, never sent as -10 deg)."""
+    text = TEXT.replace("z2: {<<: *drive, node_id: 23}",
+                        "z2: {<<: *drive, node_id: 23}\nc1: {<<: *drive, node_id: 14}")
+    text = text.replace(
+        "            z: {node: z1, counts_per_mm: 10000, min: 0, max: 200}\n",
+        "            z: {node: z1, counts_per_mm: 10000, min: 0, max: 200}\n"
+        "            c: {node: c1, counts_per_deg: 1000, min: 0, max: 720}\n")
+    text = text.replace("  z2: {initial_counts: 1000000, max_velocity: 3.0e7}",
+                        "  z2: {initial_counts: 1000000, max_velocity: 3.0e7}\n"
+                        "  c1: {initial_counts: 350000, max_velocity: 3.0e7}")
+    assert text.count("c1") == 3
+    path = tmp_path / "bus.yml"
+    path.write_text(text)
+    cfg = parse_config(text, str(path), base_dir=BUS.parent)
+    assert [a.name for a in cfg.tracking.cell.robots[0].axes] == ["x", "y", "z", "c"]
+    src = CellSource(cfg.tracking.cell, duration_s=1.0)
+    ctl = _run(cfg, src)
+    assert ctl.exit_code() == EXIT_OK
+    ev = [e for e in ctl.events if e.kind == "start_pose"]
+    assert len(ev) == 1 and "c=350.000" in ev[0].detail and "c=360.000" in ev[0].detail
+    running = [r for r in ctl.trace if r.phase == "running"][1:]
+    c = [r.targets[3] for r in running]
+    assert min(c) == max(c) == 350000                 # x moved with belt A, c did not turn
+    assert running[-1].targets[0] > running[0].targets[0] + 1_000_000

@@ -192,7 +192,8 @@ class CellSource:
             real = Location.from_axis_angle(pose.pos, _Z, pose.ang)
             world = rs.base.compound(real).compound(rs.tool)
             configured = rs.base.inverse().compound(rs.start).compound(rs.tool.inverse())
-            cj = machine.joints(_state(configured, pose.ang))
+            cj = machine.joints(_state(configured, _unwrap(q_twist_angle(configured.ori, _Z),
+                                                           pose.ang)))
             if all(abs(a - b) * ax.scale.counts_per_unit <= 0.5
                    for a, b, ax in zip(cj, mine, rc.axes)):
                 begin = rs.start
@@ -206,6 +207,9 @@ class CellSource:
                                                    for a, v in zip(rc.axes, cj)) + ")",
                     level=20))
             robots.append(replace(spec, robot=replace(rs, start=begin)))
+            # the tool angle c [deg] is unwrapped from where the drive is (a c of 350 deg
+            # stays 350, not -10)
+            self._prev_c[rc.name] = pose.ang
             j0 += n
         self.run = CellRun(frames, robots, self.cell.sensors, params, sources)
         j0 = 0
@@ -215,8 +219,6 @@ class CellSource:
                                    rc.spec.robot.base.inverse(), rc.spec.robot.tool.inverse()))
             j0 += n
         self._joints = list(joints)
-        for rc in self.cell.robots:
-            self._prev_c[rc.name] = 0.0
         for name, r in self.run.robots.items():
             self._record_sample(name, r.setpoint, Imfs.NOT_SYNCHRONIZED, 0, "", ())
         self._record_masters()
@@ -297,11 +299,8 @@ class CellSource:
         joints: list[float] = []
         for r, machine, _j0, _n, base_inv, tool_inv in self._machines:
             real = base_inv.compound(outs[r.name].setpoint).compound(tool_inv)
-            c = q_twist_angle(real.ori, _Z)
-            prev = self._prev_c[r.name]
-            d = (c - prev) % 360.0
-            c = prev + (d - 360.0 if d > 180.0 else d)
-            self._prev_c[r.name] = c
+            c = self._prev_c[r.name] = _unwrap(q_twist_angle(real.ori, _Z),
+                                               self._prev_c[r.name])
             joints.extend(machine.joints(_state(real, c)))
         prev_j = self._joints
         vel = tuple((a - b) / T for a, b in zip(joints, prev_j))
@@ -491,3 +490,9 @@ def format_cell_table(src: CellSource) -> str:
                          f"{rec.status.value:<8} {rec.trigger_s:9.3f} {syn} "
                          + (f"{tts:9.3f}" if tts is not None else f"{'-':>9}"))
     return "\n".join(lines)
+
+
+def _unwrap(angle_deg: float, near_deg: float) -> float:
+    """``angle_deg`` plus the whole turns that bring it within 180 deg of ``near_deg``."""
+    d = (angle_deg - near_deg) % 360.0
+    return near_deg + (d - 360.0 if d > 180.0 else d)
