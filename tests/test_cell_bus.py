@@ -362,3 +362,60 @@ def test_a_robot_with_a_tool_axis_keeps_its_angle_without_a_turn(tmp_path):
     c = [r.targets[3] for r in running]
     assert min(c) == max(c) == 350000                 # x moved with belt A, c did not turn
     assert running[-1].targets[0] > running[0].targets[0] + 1_000_000
+
+
+def test_cantrack_run_runs_the_cell_against_sim_devices(tmp_path, capsys):
+    """``cantrack run CELL.yml`` on a python-can virtual channel against ``cantrack
+    sim-devices`` (a thread: the virtual interface does not reach other processes), in real
+    time with a 10 ms cycle: the cell's summary, each robot's items in the telemetry, exit 0."""
+    import os
+    import threading
+
+    from controller.cli import run as cmd_run
+    from controller.cli import sim_devices as cmd_sim
+    from controller.testing.e2e import wait_file
+
+    text = TEXT.replace("sync_period: 4000 ", "sync_period: 10000 ")
+    path = tmp_path / "bus.yml"
+    path.write_text(text.replace("../../eds/", str(ROOT / "eds") + "/"))
+    channel = f"cell-{os.getpid()}"
+    ready = tmp_path / "ready.json"
+    done = threading.Event()
+    errors: list[BaseException] = []
+
+    def devices():
+        try:
+            cmd_sim.main([str(path), "-i", "virtual", "-c", channel, "-q", "--duration", "8",
+                          "--ready-file", str(ready)])
+        except BaseException as exc:  # pragma: no cover - reported below
+            errors.append(exc)
+        finally:
+            done.set()
+
+    th = threading.Thread(target=devices, daemon=True)
+    th.start()
+    wait_file(ready, [], 30, running=lambda: not done.is_set())
+    tel = tmp_path / "t.jsonl"
+    code = cmd_run.main([str(path), "-i", "virtual", "-c", channel, "-q", "--duration", "1.5",
+                         "--telemetry", str(tel)])
+    out = capsys.readouterr().out
+    done.wait(15)
+    assert not errors, errors
+    assert code == 0, out
+    assert out.splitlines()[0].split() == ["robot", "items", "caught", "picked", "missed",
+                                           "ignored", "hand-offs", "max", "err", "mm"]
+    assert "items placed" not in out                       # (the cell prints its own items)
+    lines = [json.loads(x) for x in tel.read_text().splitlines()]
+    end = lines[-1]
+    assert end["type"] == "end" and end["exit_code"] == 0
+    assert end["robots"]["r1"]["caught"] == 1 and end["robots"]["r2"]["caught"] == 1
+    assert {(d["robot"], d["item"]) for d in lines if d["type"] == "item"} == {
+        ("r1", 1), ("r1", 2), ("r2", 1), ("r2", 2)}
+
+
+def test_cantrack_run_refuses_the_one_belt_options_for_a_cell():
+    from controller.cli import run as cmd_run
+
+    with pytest.raises(ConfigError, match="--engage-at is for one belt") as info:
+        cmd_run.main([str(BUS), "-i", "virtual", "-c", "nobody", "--engage-at", "1"])
+    assert info.value.key == ".tracking.cell"
