@@ -41,6 +41,23 @@ SCENARIO = ROOT / "examples" / "cell_bus_handoff.yaml"
 TEXT = BUS.read_text()
 
 
+def _real_time_text() -> str:
+    """The example with a 10 ms cycle and generous supervision windows (heartbeat time-outs
+    8 x 50 ms, time-outs of seconds, 20 silent cycles): real time on a loaded machine."""
+    text = TEXT
+    for old, new in (("sync_period: 4000 ", "sync_period: 10000 "),
+                     ("heartbeat_multiplier: 3.0", "heartbeat_multiplier: 8.0"),
+                     ("timeouts: {boot_up_s: 2.0, sdo_s: 0.5, enable_s: 2.0}",
+                      "timeouts: {boot_up_s: 4.0, sdo_s: 1.0, sdo_retries: 2, enable_s: 4.0}"),
+                     ("counts_per_mm: 40.96}    # 4096", "counts_per_mm: 40.96, silent_cycles: 20}  #"),
+                     ("belt_b: {node: enc_b, counts_per_mm: 40.96}",
+                      "belt_b: {node: enc_b, counts_per_mm: 40.96, silent_cycles: 20}"),
+                     ("../../eds/", str(ROOT / "eds") + "/")):
+        assert old in text, old
+        text = text.replace(old, new)
+    return text
+
+
 def _run(cfg, src, *, inject=None, max_cycles=None):
     with SimWorld(cfg) as world:
         ctl = Controller(cfg, world.transport, src, keep_trace=True)
@@ -295,10 +312,8 @@ def test_cantrack_demo_runs_the_cell_in_real_time(tmp_path, capsys):
     """``--realtime``: the same cell on the wall clock (a 10 ms cycle, so that a loaded
     machine keeps it), 1.5 s of tracking: r1 catches its item on belt A, r2 its type-2 item
     on B2, no reaction, exit 0; the real-time figures are taken."""
-    text = TEXT.replace("sync_period: 4000 ", "sync_period: 10000 ")
-    assert text != TEXT
     path = tmp_path / "bus.yml"
-    path.write_text(text.replace("../../eds/", str(ROOT / "eds") + "/"))
+    path.write_text(_real_time_text())
     out = tmp_path / "out"
     code = cmd_demo.main([str(path), "-q", "--no-plot", "--realtime", "--duration", "1.5",
                           "-o", str(out)])
@@ -375,9 +390,8 @@ def test_cantrack_run_runs_the_cell_against_sim_devices(tmp_path, capsys):
     from controller.cli import sim_devices as cmd_sim
     from controller.testing.e2e import wait_file
 
-    text = TEXT.replace("sync_period: 4000 ", "sync_period: 10000 ")
     path = tmp_path / "bus.yml"
-    path.write_text(text.replace("../../eds/", str(ROOT / "eds") + "/"))
+    path.write_text(_real_time_text())
     channel = f"cell-{os.getpid()}"
     ready = tmp_path / "ready.json"
     done = threading.Event()
