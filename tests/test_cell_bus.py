@@ -141,18 +141,80 @@ def test_a_robot_with_a_pick_program_on_the_bus(program_run):
     assert src.traces["r2"].pos[-1] == pytest.approx((1000.0, 300.0, 100.0), abs=1e-6)
 
 
-@pytest.mark.parametrize("which", ["timed", "program"])
+#: robot r2 following robot r1's TCP (a group frame, type 3: docs/spec/conveyor-extensions.md#4)
+#: from 0.2 s to 1.0 s, its item 500 mm beside r1's TCP: (old, new) in the bus file, then in
+#: the scenario (as written there)
+GROUP = ((("      - name: B2                        # r2's own frame object on belt B\n",
+           "      - name: on_r1                     # r1's TCP as r2's master\n"
+           "        group: {robot: r1}\n"
+           "        limits: {VelocityMaxTrans: 2000, AccelerationMaxTrans: 20000}\n"
+           "      - name: B2                        # r2's own frame object on belt B\n"),
+          ("        track_types: {B2: [2]}\n        master_frame:\n"
+           "          - {time_s: 0.5, frame: B2}\n          - {time_s: 4.5, frame: none}\n",
+           "        master_frame:\n          - {time_s: 0.2, frame: on_r1}\n"
+           "          - {time_s: 1.0, frame: none}\n"),
+          ("      - {frame: B2, robots: [r2], trigger_times: [0.3, 0.6], types: [1, 2]}\n",
+           "      - {frame: on_r1, robots: [r2], trigger_times: [0.1],\n"
+           "         offset: {position: [500, 100, 0]}}\n")),
+         (("    - name: B2\n",
+           "    - name: on_r1\n      group: {robot: r1}\n"
+           "      limits: {VelocityMaxTrans: 2000, AccelerationMaxTrans: 20000}\n"
+           "    - name: B2\n"),
+          ("      track_types: {B2: [2]}\n      master_frame:\n"
+           "        - {time_s: 0.5, frame: B2}\n        - {time_s: 4.5, frame: none}\n",
+           "      master_frame:\n        - {time_s: 0.2, frame: on_r1}\n"
+           "        - {time_s: 1.0, frame: none}\n"),
+          ("    - {frame: B2, robots: [r2], trigger_times: [0.3, 0.6], types: [1, 2]}\n",
+           "    - {frame: on_r1, robots: [r2], trigger_times: [0.1],\n"
+           "       offset: {position: [500, 100, 0]}}\n")))
+
+
+@pytest.fixture(scope="module")
+def group_run(tmp_path_factory):
+    """The cell with r2 following r1's TCP (on the bus and in the scenario)."""
+    d = tmp_path_factory.mktemp("group")
+    btext, stext = TEXT, SCENARIO.read_text()
+    for old, new in GROUP[0]:
+        assert old in btext, old
+        btext = btext.replace(old, new)
+    for old, new in GROUP[1]:
+        assert old in stext, old
+        stext = stext.replace(old, new)
+    (d / "bus.yml").write_text(btext)
+    (d / "cell.yaml").write_text(stext)
+    cfg = parse_config(btext, str(d / "bus.yml"), base_dir=BUS.parent)
+    sc = load_scenario(d / "cell.yaml")
+    src = CellSource(cfg.tracking.cell, duration_s=2.0, record=10**6, keep_inputs=True)
+    return cfg, sc, src, _run(cfg, src)
+
+
+def test_a_robot_follows_another_robots_tcp_on_the_bus(group_run):
+    """r2 tracks r1's TCP (group frame, its limits taken): synchronised at once (r1 at rest),
+    then r2's x moves with r1's until the MasterFrame = none at 1.0 s."""
+    cfg, sc, src, ctl = group_run
+    assert ctl.exit_code() == EXIT_OK
+    assert src.summaries["r2"].caught == 1
+    T = cfg.period_s
+    r1 = np.array(src.traces["r1"].pos)
+    r2 = np.array(src.traces["r2"].pos)
+    k = slice(round(0.5 / T), round(0.95 / T))        # r1 moving, r2 synchronised
+    assert np.ptp(r1[k, 0]) > 50.0
+    assert np.allclose(r2[k, 0] - r1[k, 0], 1000.0 - 300.0, atol=1e-6)   # slave 5: its offset
+
+
+@pytest.mark.parametrize("which", ["timed", "program", "group"])
 def test_bus_and_simulator_give_the_same_setpoints_and_items(which, request):
     """Bit-identical on the same inputs (see the module docstring); r2 by timed MasterFrame
-    changes and by its pick program."""
-    cfg, sc, src, ctl = request.getfixturevalue("bus_run" if which == "timed"
-                                                else "program_run")
+    changes, by its pick program, following r1's TCP."""
+    cfg, sc, src, ctl = request.getfixturevalue(f"{which}_run" if which != "timed"
+                                                else "bus_run")
     tc = cfg.tracking
     assert sc.params == tc.tracker                  # the same tracker for every robot
     assert sc.frames == tc.cell.frames and sc.sensors == tc.cell.sensors
     assert sc.robots == tuple(r.spec for r in tc.cell.robots)
     sim = replay_cell(sc, src.inputs, src.latches)
-    assert len(sim.time_s) == src.recorded == sc.n_samples + 1
+    assert len(sim.time_s) == src.recorded == src.run.k + 1
+    assert src.run.k == round(min(sc.duration_s, src.duration_s) / sc.sample_time_s)
     assert {n: p.picks for n, p in src.run.programs.items()} == \
         {n: tr.picks for n, tr in sim.robots.items() if tr.picks}
     for name, tr in sim.robots.items():
@@ -167,7 +229,7 @@ def test_bus_and_simulator_give_the_same_setpoints_and_items(which, request):
     # (the start's cycle holds the drives where they were enabled; loop index n is the
     # cycle after it + n and sends sample n + 1)
     running = [r for r in ctl.trace if r.phase == "running"][1:]
-    assert len(running) == sc.n_samples
+    assert len(running) == src.run.k
     conv = ctl.counts
     for n, rec in enumerate(running):
         joints = []
@@ -310,12 +372,12 @@ def test_cantrack_demo_refuses_the_photo_eye_options_for_a_cell(tmp_path):
 
 def test_cantrack_demo_runs_the_cell_in_real_time(tmp_path, capsys):
     """``--realtime``: the same cell on the wall clock (a 10 ms cycle, so that a loaded
-    machine keeps it), 1.5 s of tracking: r1 catches its item on belt A, r2 its type-2 item
+    machine keeps it), 2 s of tracking: r1 catches its item on belt A, r2 its type-2 item
     on B2, no reaction, exit 0; the real-time figures are taken."""
     path = tmp_path / "bus.yml"
     path.write_text(_real_time_text())
     out = tmp_path / "out"
-    code = cmd_demo.main([str(path), "-q", "--no-plot", "--realtime", "--duration", "1.5",
+    code = cmd_demo.main([str(path), "-q", "--no-plot", "--realtime", "--duration", "2.0",
                           "-o", str(out)])
     text = capsys.readouterr().out
     assert code == 0, text
@@ -324,7 +386,7 @@ def test_cantrack_demo_runs_the_cell_in_real_time(tmp_path, capsys):
     end = lines[-1]
     assert end["type"] == "end" and end["reactions"] == 0
     assert end["robots"]["r1"]["caught"] == 1 and end["robots"]["r2"]["caught"] == 1
-    assert end["timing"]["sync_jitter_us"]["n"] >= 1.5 / 0.010   # measured every cycle
+    assert end["timing"]["sync_jitter_us"]["n"] >= 2.0 / 0.010   # measured every cycle
 
 
 def test_a_silent_encoder_desyncs_only_the_robots_on_its_frames():
@@ -410,7 +472,7 @@ def test_cantrack_run_runs_the_cell_against_sim_devices(tmp_path, capsys):
     th.start()
     wait_file(ready, [], 30, running=lambda: not done.is_set())
     tel = tmp_path / "t.jsonl"
-    code = cmd_run.main([str(path), "-i", "virtual", "-c", channel, "-q", "--duration", "1.5",
+    code = cmd_run.main([str(path), "-i", "virtual", "-c", channel, "-q", "--duration", "2.0",
                          "--telemetry", str(tel)])
     out = capsys.readouterr().out
     done.wait(15)

@@ -119,6 +119,19 @@ def required_location(node: Section, key: str) -> Location:
     return loc
 
 
+def read_frame_limits(node: Section) -> CartesianLimits:
+    """A frame's ``limits`` by softMC's names (VelocityMaxTrans [mm/s], ... JerkMaxRot
+    [deg/s³]; docs/spec/conveyor.md#3.5), softMC's defaults for those not given."""
+    limits = FRAME_LIMITS
+    ln = node.optional_section("limits")
+    if ln is not None:
+        ln.check_keys(list(SOFTMC_LIMIT_NAMES))
+        limits = frame_limits(**{
+            f: ln.number(f, getattr(getattr(limits, channel), bound), lo=0.0, lo_open=True)
+            for f, (channel, bound) in SOFTMC_LIMIT_NAMES.items()})
+    return limits
+
+
 def read_frame(node: Section) -> FrameSpec:
     node.check_keys(("name", "type", "origin", "direction", "scale_mm_per_unit", "upstream",
                      "arc_point", "downstream", "up_master", "down_master", "window",
@@ -139,13 +152,7 @@ def read_frame(node: Section) -> FrameSpec:
         raise w.error("downstream", f"value {down!r} is out of range: must be > upstream "
                                     f"({up!r}) {unit}")
     window = Window.single(up, down)
-    limits = FRAME_LIMITS
-    ln = node.optional_section("limits")
-    if ln is not None:
-        ln.check_keys(list(SOFTMC_LIMIT_NAMES))
-        limits = frame_limits(**{
-            f: ln.number(f, getattr(getattr(limits, channel), bound), lo=0.0, lo_open=True)
-            for f, (channel, bound) in SOFTMC_LIMIT_NAMES.items()})
+    limits = read_frame_limits(node)
     if ftype == LINEAR:
         for k in ("upstream", "arc_point", "downstream", "up_master", "down_master"):
             if node.has(k):

@@ -113,7 +113,8 @@ class CellRun:
             if fs.group is not None:
                 made[fs.name] = MovingFrame.group(
                     fs.name, self.robots[fs.group.robot], transform=fs.group.transform,
-                    axis=fs.group.axis, window=fs.window, world=fs.world)
+                    axis=fs.group.axis, window=fs.window, limits=fs.group_limits,
+                    world=fs.world)
         #: the frames in the description's order
         self.frames: dict[str, MovingFrame] = {fs.name: made[fs.name] for fs in frames}
         self.programs: dict[str, PickProgram] = {}

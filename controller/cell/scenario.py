@@ -24,6 +24,8 @@ units.  ``*`` = required::
           group: {robot: r1, transform: {position: [..], axis: [..], angle_deg: ..},
                   axis: [0, 0, 1]}   #   the robot, its world seen from here, the turn axis
           window: {upstream: [..4], downstream: [..4]}   # optional (dx, dy, dz, angle)
+          limits: {AccelerationMaxTrans: 20000}   # optional: softMC's names (the master
+                                     #   robot's TCP above them is a tracker error)
       robots*:                       # a list: the keys of conveyor.robot, plus
         - name: r1
           kinematics: {type: general, dimension: 6}
@@ -53,16 +55,17 @@ from __future__ import annotations
 
 import copy
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Mapping, Protocol, TypeVar
 
-from ..conveyor import Kinematics, Location, Window
+from ..conveyor import FRAME_LIMITS, Kinematics, Location, Window
+from ..limits import CartesianLimits
 from ..errors import ParameterError
 from ..tracking import TrackerParams
 from ..yamlmarks import Section, check_number
 from .elements import (FrameSpec, MasterSpec, ProgramSpec, RobotSpec, read_frame,
-                       read_location, read_master, read_program, read_robot)
+                       read_frame_limits, read_location, read_master, read_program, read_robot)
 from .reading import MAX_SAMPLES, SampledRun, tracker_params
 
 __all__ = ["GroupSpec", "CellFrameSpec", "FrameChange", "CellRobotSpec", "SensorSpec",
@@ -80,8 +83,9 @@ class GroupSpec:
     robot: str
     transform: Location = Location()
     axis: tuple[float, float, float] = (0.0, 0.0, 1.0)
-    line: int | None = None
-    path: str = ""
+    #: where ``robot`` is written (its errors), not part of the frame: not compared
+    line: int | None = field(default=None, compare=False)
+    path: str = field(default="", compare=False)
 
 
 @dataclass(frozen=True)
@@ -94,6 +98,8 @@ class CellFrameSpec:
     world: Kinematics | None = None
     group: GroupSpec | None = None
     group_name: str = ""
+    #: a group frame's limits (softMC's names; the others' are in ``spec``)
+    group_limits: CartesianLimits = FRAME_LIMITS
 
     @property
     def name(self) -> str:
@@ -212,9 +218,10 @@ def read_group_frame(node: Section) -> CellFrameSpec:
         except ParameterError as exc:
             raise w.error("downstream", str(exc)) from None
     world = read_kinematics(node.optional_section("world"))
+    limits = read_frame_limits(node)
     gs = GroupSpec(g.string("robot"), transform, tuple(axis), g.value_line("robot"),
                    g.key_path("robot"))
-    return CellFrameSpec(None, (), (), (), window, world, gs, name)
+    return CellFrameSpec(None, (), (), (), window, world, gs, name, limits)
 
 
 def read_cell_frame(node: Section, masters: Mapping[str, object]) -> CellFrameSpec:
