@@ -156,17 +156,19 @@ def test_encoder_tpdo_on_sync_wraps_at_6002h(bus):
     assert len(m.of(0x18A)) == 11
 
 
-def _late_sync(world, m, late_ns: int) -> int:
-    """A SYNC that was on the bus at t (its message time) and is served ``late_ns`` later
-    (what a device thread waiting for the interpreter does); returns t."""
+def _late_sync(world, m, late_ns: int, syncs_ns: tuple[int, ...] = (0,)) -> int:
+    """SYNCs that were on the bus at t + each of ``syncs_ns`` (their message times), served
+    together ``late_ns`` after t (what a device thread waiting for the interpreter does);
+    returns t."""
     import can
     clock = world.clock
     t = clock.now_ns()
     clock.advance_to(t + late_ns)
     raw = world.world.new_bus()
     try:
-        raw.send(can.Message(arbitration_id=0x80, data=b"", is_extended_id=False,
-                             timestamp=t * 1e-9))
+        for dt in syncs_ns:
+            raw.send(can.Message(arbitration_id=0x80, data=b"", is_extended_id=False,
+                                 timestamp=(t + dt) * 1e-9))
     finally:
         raw.shutdown()
     m.run(0)
@@ -200,6 +202,23 @@ def test_a_sync_served_late_is_sampled_at_its_bus_time_and_kept_to_1007h(bus, wi
     # served at once, the next SYNC is answered (the window counts from each SYNC)
     m.sync()
     assert len(m.of(0x18A)) == n + len(frames) + 1
+
+
+def test_a_sync_served_after_the_next_one_is_on_the_bus_is_not_answered(bus):
+    """Two SYNCs 2 ms apart served together 0.3 ms after the second (no window: 1007h = 0):
+    an answer to the first would follow the second SYNC on the bus, where a real device
+    never puts it, and be taken for the second's; the first is left unanswered (counted),
+    the second answered with the belt at its time."""
+    world, m = bus
+    enc = world.device("encoder")
+    world.rack.port.frame_time = True
+    m.nmt(0x01, 10)
+    m.sync()
+    n = len(m.of(0x18A))
+    t = _late_sync(world, m, 2_300_000, (0, 2_000_000))
+    assert [struct.unpack("<Ih", d)[0] for d in m.of(0x18A)[n:]] == \
+        [enc.true_counts(t + 2_000_000) % 16777216]
+    assert enc.sync_tpdos_discarded == 1 and enc.next_sync_ns is None
 
 
 def test_without_frame_time_a_device_samples_when_it_serves_the_sync(bus):

@@ -272,6 +272,10 @@ class SlaveEngine:
         self.sync_window_ns = 0
         #: synchronous TPDOs not sent because their SYNC was served after the window
         self.sync_tpdos_discarded = 0
+        #: set by a host that serves frames late (the device rack in a thread) while it
+        #: hands over a SYNC behind which the next SYNC [bus time, ns] is already in: this
+        #: SYNC's synchronous TPDOs would follow the next SYNC on the bus (discarded)
+        self.next_sync_ns: int | None = None
         bus.subscribe(0x600 + self.node_id, self._on_sdo_frame)
         bus.subscribe(0x000, self._on_nmt)
         if sync_cob_id is not None:
@@ -761,7 +765,8 @@ class SlaveEngine:
         CiA 301: synchronous PDOs only within it after the SYNC) the synchronous TPDOs are
         discarded, as CANopenNode clears its pending synchronous TPDOs when the window has
         passed: a late answer is never taken for the next SYNC's (counted in
-        ``sync_tpdos_discarded``)."""
+        ``sync_tpdos_discarded``).  Likewise when the host has the next SYNC already
+        (:attr:`next_sync_ns`): a real device would have answered before it."""
         if not self.listening() or self.nmt_state in (Nmt.INITIALISING, Nmt.STOPPED):
             return
         if self._pdo_dirty:
@@ -770,7 +775,7 @@ class SlaveEngine:
         now = self.clock.now_ns()
         t_sync = now if t_ns is None or t_ns > now else t_ns
         window = self.sync_window_ns
-        outside = window > 0 and now - t_sync > window
+        outside = (window > 0 and now - t_sync > window) or self.next_sync_ns is not None
         operational = self.nmt_state is Nmt.OPERATIONAL
         if operational:
             for pdo in self.rpdos.values():

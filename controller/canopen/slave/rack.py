@@ -10,6 +10,7 @@ none of them needs.
 
 from __future__ import annotations
 
+from collections import deque
 from collections.abc import Iterable
 from typing import TYPE_CHECKING
 
@@ -37,16 +38,48 @@ class DeviceRack:
         # get each frame's bus time (a SYNC served late is still sampled at its time)
         self.port = Port(bus, clock, frame_time)
         self.devices: dict[str, SimNode] = {}
+        self._ahead: deque[can.Message] = deque()  # frames read ahead (frame_time)
 
     def add(self, device: SimNode) -> SimNode:
         self.devices[device.name] = device
         return device
 
+    @property
+    def _sync_cobs(self) -> set[int]:
+        return {d.sync_cob_id for d in self.devices.values() if d.sync_cob_id is not None}
+
     def __getitem__(self, name: str) -> SimNode:
         return self.devices[name]
 
     def handle(self, msg: can.Message) -> None:
-        self.port.handle(msg)
+        if not self.port.frame_time:
+            self.port.handle(msg)
+            return
+        # served late (a device thread): before a SYNC, the frames already received after
+        # it; a later SYNC among them means this SYNC's answers would follow that SYNC on
+        # the bus, where a real device never puts them (it answers within microseconds):
+        # the devices leave them out (SlaveEngine.next_sync_ns) rather than have them
+        # taken for the later SYNC's
+        ahead = self._ahead
+        ahead.append(msg)
+        recv = self.bus.recv
+        port = self.port
+        while ahead:
+            m = ahead.popleft()
+            cob = m.arbitration_id
+            if cob in self._sync_cobs:
+                while (n := recv(0)) is not None:
+                    ahead.append(n)
+                later = next((x for x in ahead if x.arbitration_id == cob), None)
+                t_next = None if later is None else \
+                    round((later.timestamp - self.clock.epoch_s) * 1e9)
+                for d in self.devices.values():
+                    d.next_sync_ns = t_next
+                port.handle(m)
+                for d in self.devices.values():
+                    d.next_sync_ns = None
+            else:
+                port.handle(m)
 
     def next_timer_ns(self) -> int | None:
         due = [t for d in self.devices.values() if (t := d.next_timer_ns()) is not None]
