@@ -121,9 +121,10 @@ def _workload(period_us: int, seconds: float, tmp: Path):
     return cfg, demo
 
 
-def outcomes(app) -> dict[int, tuple[str, int | None]]:
-    """item index -> (outcome, trigger cycle) of every item the photo-eye reported."""
-    return {i.index: (i.outcome, i.trigger_cycle) for i in app.items()}
+def outcomes(app) -> dict[int, tuple[str, int | None, str]]:
+    """item index -> (outcome, trigger cycle, reason) of every item the photo-eye
+    reported."""
+    return {i.index: (i.outcome, i.trigger_cycle, i.reason) for i in app.items()}
 
 
 def stepped_run(period_us: int, seconds: float, tmp: Path) -> dict:
@@ -148,13 +149,14 @@ def compare_items(stepped: dict, realtime: dict, period_s: float, cycles: int,
     out = []
     last = cycles - margin_s / period_s
     n = 0
-    for idx, (outcome, trig) in sorted(stepped.items()):
+    for idx, (outcome, trig, _) in sorted(stepped.items()):
         if outcome not in ("placed", "missed") or trig is None or trig > last:
             continue
         n += 1
-        got = realtime.get(idx, ("not seen", None))[0]
+        got, _, why = realtime.get(idx, ("not seen", None, ""))
         if got != outcome:
-            out.append(f"item {idx}: stepped {outcome}, real time {got}")
+            out.append(f"item {idx}: stepped {outcome}, real time {got}"
+                       + (f" ({why})" if why else ""))
     return n, out
 
 
@@ -243,7 +245,7 @@ def main(argv=None) -> int:
             if short:
                 diff.insert(0, f"the real-time run ended after {ctl['cycles']} of "
                                f"{ref['cycles']} cycles")
-            n_ref = sum(1 for o, _ in ref["items"].values() if o == "placed")
+            n_ref = sum(1 for o, _, _ in ref["items"].values() if o == "placed")
             ctl["items"] = {str(k): v for k, v in ctl["items"].items()}
             results[f"{period_ms:g}ms"] = {"floor": floor, "controller": ctl,
                                            "stepped_placed": n_ref, "items_compared": n_cmp,
