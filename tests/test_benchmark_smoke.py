@@ -85,3 +85,20 @@ def test_cases_are_deterministic():
     b, rb = bench.random_cases(5, 8)
     assert a == b and ra == rb
     assert [c.dim for c in a] == [1, 3] * 4
+
+
+def test_encoder_timing_against_a_baseline_checkout(tmp_path):
+    """benchmarks/encoder.py --baseline: the ideal update of another checkout is timed in a
+    child process on the same cases (here this tree as its own baseline: the child must
+    import the checkout's controller, the cases' digest must match), interleaved with this
+    tree's; a directory that is not a checkout is refused by name."""
+    enc = pytest.importorskip("benchmarks.encoder")
+    res = enc.timing(bench.timing_cases, 1, 1, baseline=ROOT, rounds=1)
+    assert [m for m, _ in res["rounds"]] == ["ideal", "conditioned", "baseline"]
+    assert res["baseline"] > 0.0 and res["ratio_baseline"] == pytest.approx(
+        res["conditioned"] / res["baseline"])
+    assert res["baseline_path"] == str(ROOT)
+    rows = enc.cost_target({"timing": res})
+    assert rows[0][0].endswith("(the baseline's ideal update)")
+    with pytest.raises(SystemExit, match="not a cantrack checkout"):
+        enc.timing(bench.timing_cases, 1, 1, baseline=tmp_path, rounds=1)

@@ -316,6 +316,8 @@ JERK_STEP_HOLD_S = 0.06
 #: the jerk-step fit's window [s] (eq. 2.8): longer than the detector's delay (40-55 ms
 #: at 50 um / 4 ms), shorter than a belt's S-curve phases
 GLR_WINDOW_S = 0.1
+#: the fit's candidate onsets are this far apart [s] (half a sample at longer cycles)
+GLR_ONSET_S = 0.001
 #: a detection is confirmed when the fit's log-likelihood ratio (twice: chi^2 units) is at
 #: least this (eq. 2.8); below it, the filter is re-opened as in eq. 2.7
 GLR_CONFIRM = 12.0
@@ -378,8 +380,8 @@ def jerk_step_fit(tau_s: np.ndarray, res_mm: np.ndarray, P_w: np.ndarray, r: flo
     (the best onset's statistic [chi^2, twice the log-likelihood ratio against no step],
     theta [s], dj [mm/s^3], delta (4,))."""
     A = np.stack([np.ones_like(tau_s), tau_s, tau_s * tau_s / 2.0, tau_s ** 3 / 6.0], axis=1)
-    Pi = np.linalg.inv(P_w)
-    M0i = np.linalg.inv(A.T @ A / r + Pi)
+    M0 = A.T @ A / r + np.linalg.inv(P_w)
+    M0i = np.linalg.inv(M0)
     b0 = A.T @ res_mm / r
     g = M0i @ b0  # delta without a step
     d = np.maximum(tau_s[None, :] - onsets_s[:, None], 0.0)
@@ -396,13 +398,20 @@ def jerk_step_fit(tau_s: np.ndarray, res_mm: np.ndarray, P_w: np.ndarray, r: flo
     best = (float(stat[b]), float(onsets_s[b]), dj, M0i @ (b0 - W[b] * dj))
     if j0 == 0.0:
         return best
-    # back to jerk 0 at theta: res = A delta - (j0 + delta_j) S_theta, one fit per onset
-    Az = np.broadcast_to(A, (len(onsets_s),) + A.shape).copy()
-    Az[:, :, 3] -= S
-    rz = res_mm[None, :] + j0 * S
-    bz = np.einsum("tni,tn->ti", Az, rz) / r
-    dz = np.linalg.solve(np.einsum("tni,tnk->tik", Az, Az) / r + Pi, bz[:, :, None])[:, :, 0]
-    statz = (res_mm @ res_mm / r - b0 @ g) - ((rz * rz).sum(axis=1) / r
+    # back to jerk 0 at theta: res = A_z delta - j0 s with A_z = A - s e3^T (s = S_theta):
+    # its normal equations are M0's and b0's updated by rank two from W, u and ss (no sum
+    # over the samples per onset), one 4 x 4 solve per onset
+    u = S @ res_mm / r
+    ss = (S * S).sum(axis=1) / r
+    Mz = np.broadcast_to(M0, (len(onsets_s), 4, 4)).copy()
+    Mz[:, :, 3] -= W
+    Mz[:, 3, :] -= W
+    Mz[:, 3, 3] += ss
+    bz = b0[None, :] + j0 * W
+    bz[:, 3] -= u + j0 * ss
+    dz = np.linalg.solve(Mz, bz[:, :, None])[:, :, 0]
+    statz = (res_mm @ res_mm / r - b0 @ g) - ((res_mm @ res_mm) / r + 2.0 * j0 * u
+                                               + j0 * j0 * ss
                                                - np.einsum("ti,ti->t", bz, dz))
     bz_ = int(np.argmax(statz))
     if statz[bz_] >= best[0] - GLR_ZERO_PENALTY:
@@ -472,6 +481,8 @@ class MasterConditioner:
         Ks, sd, self._Ps = jerk_step_schedule(q, r, T, P, params.frame.jerk)
         #: the jerk-step fit's window [samples] (eq. 2.8)
         self._nwin = max(8, round(GLR_WINDOW_S / T))
+        #: its candidate onsets' spacing [s]: half a sample, at most 1 ms (eq. 2.8)
+        self._onset_s = max(0.5 * T, min(T, GLR_ONSET_S))
         #: jerk steps confirmed by the fit (statistics; n_jerk_steps counts every detection)
         self.n_jerk_fits = 0
         lam = self._lam = math.exp(-T / JERK_STEP_MEMORY_S)
@@ -489,6 +500,7 @@ class MasterConditioner:
         # (1 - 1e-9): the output stays under the maxima after rounding (the tracker's master
         # monitoring compares with them exactly)
         self._V, self._A, self._J = f.vel * (1.0 - 1e-9), f.acc * (1.0 - 1e-9), f.jerk
+        self._J6 = f.jerk / 6.0  # the gate's growth: J dt^3 / 6 (eq. 3.1)
         self._Jout = f.jerk * (1.0 + params.jerk_reserve)
         #: jerk available for corrections on top of the belt's own (eq. 4.2)
         self._authority = max(self._Jout - f.jerk, 0.25 * f.jerk)
@@ -575,7 +587,7 @@ class MasterConditioner:
         innov = z - xp[0]
         if self._n >= self._warmup:
             da = self._dt(ts, self._t_acc)
-            gate = self._gate + self._J * da * da * da / 6.0
+            gate = self._gate + self._J6 * da * da * da
             if abs(innov) > gate:
                 self._bad += 1
                 self._x, self._tx = xp, ts
@@ -658,7 +670,7 @@ class MasterConditioner:
             pw, vw, aw, jw = xw
             res = zs - (pw + vw * tau + aw * tau * tau / 2.0 + jw * tau ** 3 / 6.0)
             stat, th, dj, dl = jerk_step_fit(tau, res, self._Ps[iw], self._r,
-                                             np.arange(0.0, tau[-1], T / 2.0), jw, self._J)
+                                             np.arange(0.0, tau[-1], self._onset_s), jw, self._J)
             if stat >= GLR_CONFIRM:
                 t = float(tau[-1])
                 p, v, a, j = self._predict((pw + dl[0], vw + dl[1], aw + dl[2], jw + dl[3]), t)
@@ -702,8 +714,8 @@ class MasterConditioner:
             innov = position_mm - p
             ta = self._t_acc
             da = (kx - ta[0]) * T + (off - ta[1])
-            if -self._gate - self._J * da * da * da / 6.0 <= innov <= (
-                    self._gate + self._J * da * da * da / 6.0):
+            gate = self._gate + self._J6 * da * da * da
+            if -gate <= innov <= gate:
                 # eq. 2.7, inlined (_gain)
                 g = self._sched[self._i]
                 s = self._lam * self._s + self._lam1 * innov

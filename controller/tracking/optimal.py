@@ -370,6 +370,16 @@ class OptimalPlanner:
         #: the reserve of plans made now (None: an ideal master, the whole limits)
         self._reserve: tuple | None = None
         self._jm = 0.0  # |master jerk| of this sample
+        self._continuity()
+        self._mprev: tuple | None = None  # the master of the last sample (mp, mv, ma)
+
+    def _continuity(self) -> None:
+        T = self.T
+        J = self.limits.jerk * _RESERVE
+        #: the continuity test of a master with a jerk (eq. 6.3): T, T^2/2, T^3/6 and the
+        #: tolerances on position, velocity, acceleration (2 % of J over one sample)
+        self._cont = (T, 0.5 * T * T, T * T * T / 6.0, J * T * T * T / 6.0, J * 0.5 * T * T,
+                      J * T)
 
     # -- Ruckig objects (not picklable: rebuilt on restore) ---------------------------
     def _solver(self) -> None:
@@ -382,6 +392,9 @@ class OptimalPlanner:
 
     def __setstate__(self, d) -> None:
         self.__dict__.update(d)
+        if "_cont" not in d:  # a state saved before the continuity test (eq. 6.3)
+            self._continuity()
+            self._mprev = None
         if self.n:
             self._solver()
             if self.plan is not None:
@@ -408,7 +421,7 @@ class OptimalPlanner:
         self._V, self._A, self._J = lim.vel * k, lim.acc * k, lim.jerk * k
         self._reserve = None
         self._jm = 0.0
-        self._mprev: tuple | None = None  # the master of the last sample (mp, mv, ma)
+        self._mprev = None
 
     def step(self, mp: Vec, mv: Vec, ma: Vec,
              mj: Vec | None = None) -> tuple[Vec, Vec, Vec, bool]:
@@ -439,26 +452,7 @@ class OptimalPlanner:
                 # within the limits while the master's velocity and acceleration stay within
                 # the reserve of the plan's prediction and its jerk within the jerk reserve
                 rv, ra, rj = plan.reserve
-                dv2 = da2 = 0.0
-                for y, z, v0, a0 in zip(mv, ma, plan.mv0, plan.ma0):
-                    dv2 += (y - v0 - a0 * t) ** 2
-                    da2 += (z - a0) ** 2
-                ok = dv2 <= rv * rv and da2 <= ra * ra and jm <= rj
-                if ok and prev is not None and mj is not None:
-                    # and the master moved on from the last sample with its jerk: a master
-                    # that jumped (a conditioned one revised at a jerk step, eq. 2.8 of
-                    # master-conditioning.md) left the plan: plan again from the last
-                    # setpoint, which closes the jump within the limits (eq. 6.3)
-                    T = self.T
-                    h, h3 = 0.5 * T * T, T * T * T / 6.0
-                    J = self.limits.jerk * _RESERVE
-                    tp, tv, ta = J * h3, J * h, J * T
-                    for x, y, z, jx, p1, v1, a1 in zip(mp, mv, ma, mj, *prev):
-                        if (abs(x - p1 - v1 * T - a1 * h - jx * h3) > tp
-                                or abs(y - v1 - a1 * T - jx * h) > tv
-                                or abs(z - a1 - jx * T) > ta):
-                            ok = False
-                            break
+                ok = jm <= rj and self._in_tube(mp, mv, ma, mj, t, plan, prev, rv, ra)
             else:
                 ok = True
                 for x, y, z, p0, v0, a0 in zip(mp, mv, ma, plan.mp0, plan.mv0, plan.ma0):
@@ -499,6 +493,65 @@ class OptimalPlanner:
                         plan.k = j
                         return self._sample(t, mp, mv, ma)
         return self._replan(mp, mv, ma)
+
+    def _in_tube(self, mp: Vec, mv: Vec, ma: Vec, mj: Vec | None, t: float, plan: _Plan,
+                 prev: tuple | None, rv: float, ra: float) -> bool:
+        """Eq. 6.3: the master within the reserve of the plan's prediction (velocity ``rv``,
+        acceleration ``ra``), and moved on from the last sample (``prev``) with its jerk: a
+        master that jumped (a conditioned one revised at a jerk step,
+        master-conditioning.md#4.5) left the plan, which is made again from the last
+        setpoint and so closes the jump within the limits.  Written out for 3 components
+        (the loop's operations in its order); other lengths the loop."""
+        T, h, h3, tp, tv, ta = self._cont
+        if len(mv) == 3:
+            v0, v1, v2 = plan.mv0
+            a0, a1, a2 = plan.ma0
+            y0, y1, y2 = mv
+            z0, z1, z2 = ma
+            x = (y0 - v0 - a0 * t) ** 2
+            x += (y1 - v1 - a1 * t) ** 2
+            x += (y2 - v2 - a2 * t) ** 2
+            if not x <= rv * rv:
+                return False
+            x = (z0 - a0) ** 2
+            x += (z1 - a1) ** 2
+            x += (z2 - a2) ** 2
+            if not x <= ra * ra:
+                return False
+            if prev is None or mj is None:
+                return True
+            (p0, p1, p2), (u0, u1, u2), (b0, b1, b2) = prev
+            j0, j1, j2 = mj
+            x0, x1, x2 = mp
+            # (norms of the three gaps against tolerances per quantity: the components'
+            # squares summed, one test each)
+            a0 = z0 - b0 - j0 * T
+            a1 = z1 - b1 - j1 * T
+            a2 = z2 - b2 - j2 * T
+            if a0 * a0 + a1 * a1 + a2 * a2 > ta * ta:
+                return False
+            a0 = y0 - u0 - (b0 + j0 * 0.5 * T) * T
+            a1 = y1 - u1 - (b1 + j1 * 0.5 * T) * T
+            a2 = y2 - u2 - (b2 + j2 * 0.5 * T) * T
+            if a0 * a0 + a1 * a1 + a2 * a2 > tv * tv:
+                return False
+            a0 = x0 - p0 - u0 * T - b0 * h - j0 * h3
+            a1 = x1 - p1 - u1 * T - b1 * h - j1 * h3
+            a2 = x2 - p2 - u2 * T - b2 * h - j2 * h3
+            return a0 * a0 + a1 * a1 + a2 * a2 <= tp * tp
+        dv2 = da2 = 0.0
+        for y, z, v0, a0 in zip(mv, ma, plan.mv0, plan.ma0):
+            dv2 += (y - v0 - a0 * t) ** 2
+            da2 += (z - a0) ** 2
+        if not (dv2 <= rv * rv and da2 <= ra * ra):
+            return False
+        if prev is None or mj is None:
+            return True
+        for x, y, z, jx, p1, v1, a1 in zip(mp, mv, ma, mj, *prev):
+            if (abs(x - p1 - v1 * T - a1 * h - jx * h3) > tp
+                    or abs(y - v1 - a1 * T - jx * h) > tv or abs(z - a1 - jx * T) > ta):
+                return False
+        return True
 
     # -- output helpers ---------------------------------------------------------------
     def _finish(self, mp: Vec, mv: Vec, ma: Vec) -> tuple[Vec, Vec, Vec, bool]:
