@@ -495,3 +495,21 @@ def test_cantrack_run_refuses_the_one_belt_options_for_a_cell():
     with pytest.raises(ConfigError, match="--engage-at is for one belt") as info:
         cmd_run.main([str(BUS), "-i", "virtual", "-c", "nobody", "--engage-at", "1"])
     assert info.value.key == ".tracking.cell"
+
+
+def test_no_hand_off_onto_a_belt_whose_encoder_is_silent():
+    """Belt B's encoder is silent from 1.0 s on: r1's hand-off to B at 2.0 s is refused (a
+    command_error event: the belt would only be extrapolated) and r1 keeps following A."""
+    cfg = load_config(BUS)
+    src = CellSource(cfg.tracking.cell, duration_s=2.5, record=10**6)
+
+    def inject(world):
+        world.at(1.0, lambda: world.device("enc_b").mute_pdos())
+
+    ctl = _run(cfg, src, inject=inject)
+    refused = [e for e in ctl.events if e.kind == "command_error"]
+    assert len(refused) == 1 and "r1" in refused[0].detail
+    assert "MasterFrame = B refused: encoder 'belt_b' not ready" in refused[0].detail
+    assert abs(refused[0].t_s - ctl.events.of_kind("enabled")[0].t_s - 2.0) < 0.01
+    assert src.summaries["r1"].handoffs == 0
+    assert src.traces["r1"].mf[-1] == "A" and src.traces["r1"].imfs[-1] == 1

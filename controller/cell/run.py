@@ -14,8 +14,9 @@ Per step (loop index ``k``, producing sample ``k + 1`` at time ``(k + 1) T``):
 1. the sensors' TRIGGERs due (sensor time ``t`` in ``[k T, (k + 1) T)``), each latching its
    frame's master values at ``t`` as the shell says (:data:`Latch`); a full trigger buffer
    is a ``trigger_rejected`` event, the run goes on;
-2. the MasterFrame changes due (time ``t`` with ``round(t / T) = k``); a rejected one is a
-   ``command_error`` event, the run goes on;
+2. the MasterFrame changes due (time ``t`` with ``round(t / T) = k``); a rejected one (by the
+   robot, or because the frame's masters cannot be followed now) is a ``command_error``
+   event, the run goes on;
 3. the pick programs (:class:`~.program.PickProgram`) on the events of the last sample;
 4. one step of the cell (frames, then robots).
 
@@ -34,7 +35,7 @@ from ..conveyor.frame import LINEAR
 from ..conveyor.sources import MasterSource, SourceState
 from ..errors import CantrackError
 from ..tracking import Mode, TrackerParams
-from .program import PickProgram
+from .program import PickProgram, PickState
 from .scenario import CellFrameSpec, CellRobotSpec, FrameChange, SensorSpec
 
 __all__ = ["CellRun", "FrameSources", "HeldSource", "Latch", "TriggerRecord"]
@@ -144,10 +145,16 @@ class CellRun:
         """The frames whose sensors trigger in loop index ``k`` (the shell latches them)."""
         return tuple(sen.frame for sen, _ in self._sensors.get(k, ()))
 
-    def step(self, latch: Latch) -> tuple[dict[str, RobotOutput], dict[str, list[Event]]]:
+    def step(self, latch: Latch, usable: Callable[[str], str | None] | None = None
+             ) -> tuple[dict[str, RobotOutput], dict[str, list[Event]]]:
         """Loop index ``self.k`` (see the module docstring); returns each robot's output of
         the new sample and the events of the shell's commands (rejected TRIGGERs and
-        MasterFrame changes) by robot, which precede the output's own events."""
+        MasterFrame changes) by robot, which precede the output's own events.
+
+        ``usable(frame)``: why the frame's masters cannot be followed now (the bus: an
+        encoder silent or lost), None when they can; a MasterFrame change to such a frame is
+        refused (``command_error``) and a pick program waiting for its next item on it does
+        not take one.  None: every frame is usable (the simulator)."""
         k = self.k
         frames, robots = self.frames, self.robots
         extra: dict[str, list[Event]] = {name: [] for name in robots}
@@ -165,12 +172,20 @@ class CellRun:
                     continue
                 self.triggers.append((k, rname, sen.frame, e.id, e.item_type))
         for rname, c in self._changes.get(k, ()):
+            why = usable(c.frame) if usable is not None and c.frame else None
+            if why is not None:
+                extra[rname].append(Event(k, EventKind.COMMAND_ERROR, c.frame or "",
+                                          message=f"MasterFrame = {c.frame} refused: {why}"))
+                continue
             try:
                 robots[rname].set_master_frame(frames[c.frame] if c.frame else None)
             except CantrackError as exc:
                 extra[rname].append(Event(k, EventKind.COMMAND_ERROR, c.frame or "",
                                           message=str(exc)))
         for rname, prog in self.programs.items():
+            if usable is not None and prog.state is PickState.IDLE and \
+                    usable(prog.frame.name) is not None:
+                continue   # (no new item on a frame that cannot be followed)
             prog.tick(self._last[rname])
         outs = self.cell.step()
         for rname, out in outs.items():

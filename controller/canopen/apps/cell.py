@@ -31,7 +31,9 @@ and the controlled stop of all drives of all robots are the cycle's (a fault of 
 quick-stops every drive; the run ends with exit code 3 or 4).  A PLC's engage 0 de-syncs
 every robot (``STOP``); its item triggers and tracked types are not taken by a cell (the
 cell's sensors and ``track_types`` say which robot takes what), each reported once.  A silent
-or lost encoder de-syncs the robots following a frame it feeds.
+or lost encoder de-syncs the robots following a frame it feeds; while it is not ready again,
+a MasterFrame change to such a frame is refused (``command_error``) and a pick program takes
+no new item on it.
 
 Pure in the sense of :mod:`~controller.canopen.master.source`: no I/O, no clock.
 """
@@ -131,6 +133,7 @@ class CellSource:
         self._end_n: int | None = None
         self._held: dict[str, list[tuple[int, HeldSource]]] = {}
         self._enc_index = {name: i for i, name in enumerate(cell.encoders)}
+        self._enc_names = list(cell.encoders)
         self._machines: list[tuple[RobotGroup, MachineKinematics, int, int, Location,
                                    Location]] = []
         self._joints: list[float] = []
@@ -278,9 +281,16 @@ class CellSource:
                 self.latches[(n, sen.frame, i)] = vals
             return vals
 
+        def usable(frame: str) -> str | None:
+            for j, _h in self._held.get(frame, ()):
+                if not masters[j].ready:
+                    return (f"encoder {self._enc_names[j]!r} not ready (silent or lost: the "
+                            "belt is only extrapolated)")
+            return None
+
         if self.keep_inputs:
             self.inputs.append(held)
-        outs, extra = run.step(latch)
+        outs, extra = run.step(latch, usable)
         positions, velocities = self._setpoints(outs)
         self._bookkeeping(ctx, outs, extra, events)
         self._sent.append(positions)
