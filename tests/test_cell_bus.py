@@ -43,10 +43,10 @@ TEXT = BUS.read_text()
 
 def _real_time_text() -> str:
     """The example with a 10 ms cycle and generous supervision windows (heartbeat time-outs
-    8 x 50 ms, time-outs of seconds, 20 silent cycles): real time on a loaded machine."""
-    text = TEXT
+    10 x 100 ms, time-outs of seconds, 20 silent cycles): real time on a loaded machine."""
+    text = TEXT.replace("heartbeat_producer: 50", "heartbeat_producer: 100")
     for old, new in (("sync_period: 4000 ", "sync_period: 10000 "),
-                     ("heartbeat_multiplier: 3.0", "heartbeat_multiplier: 8.0"),
+                     ("heartbeat_multiplier: 3.0", "heartbeat_multiplier: 10.0"),
                      ("timeouts: {boot_up_s: 2.0, sdo_s: 0.5, enable_s: 2.0}",
                       "timeouts: {boot_up_s: 4.0, sdo_s: 1.0, sdo_retries: 2, enable_s: 4.0}"),
                      ("counts_per_mm: 40.96}    # 4096", "counts_per_mm: 40.96, silent_cycles: 20}  #"),
