@@ -513,3 +513,28 @@ def test_no_hand_off_onto_a_belt_whose_encoder_is_silent():
     assert abs(refused[0].t_s - ctl.events.of_kind("enabled")[0].t_s - 2.0) < 0.01
     assert src.summaries["r1"].handoffs == 0
     assert src.traces["r1"].mf[-1] == "A" and src.traces["r1"].imfs[-1] == 1
+
+
+def test_a_robot_base_frame_maps_the_world_setpoint_to_its_drives(tmp_path):
+    """r2's base is 100 mm along x in the world: its drives get Robot_real = base⁻¹ :
+    setpoint (x 100 mm less than the world TCP), its world setpoint is the same as without
+    the base (its start is a world location) and it starts without a start_pose event."""
+    text = TEXT.replace("        start: [1000.0, 300.0, 100.0]\n",
+                        "        start: [1000.0, 300.0, 100.0]\n"
+                        "        base: {position: [100.0, 0.0, 0.0]}\n")
+    text = text.replace("x2: {initial_counts: 10000000,", "x2: {initial_counts: 9000000,")
+    assert text.count("base: {position") == 1 and "initial_counts: 9000000" in text
+    path = tmp_path / "bus.yml"
+    path.write_text(text)
+    cfg = parse_config(text, str(path), base_dir=BUS.parent)
+    src = CellSource(cfg.tracking.cell, duration_s=2.0, record=10**6)
+    ctl = _run(cfg, src)
+    assert ctl.exit_code() == EXIT_OK and not ctl.events.of_kind("start_pose")
+    ref = CellSource(load_config(BUS).tracking.cell, duration_s=2.0, record=10**6)
+    _run(load_config(BUS), ref)
+    assert src.traces["r2"].pos == ref.traces["r2"].pos        # the same world TCP
+    running = [r for r in ctl.trace if r.phase == "running"][1:]
+    world = np.array(src.traces["r2"].pos[1:])
+    x2 = np.array([r.targets[3] for r in running])
+    assert np.all(np.abs(x2 - (world[:, 0] - 100.0) * 10000) <= 0.5)
+    assert np.ptp(world[:, 1]) > 50.0                            # r2 followed belt B2

@@ -137,6 +137,9 @@ class CellSource:
         self._machines: list[tuple[RobotGroup, MachineKinematics, int, int, Location,
                                    Location]] = []
         self._joints: list[float] = []
+        #: per robot: base and tool are identity; it has a tool axis c
+        self._plain: list[bool] = []
+        self._turns: list[bool] = []
         #: the joints sent in the last 1 + drive_delay_cycles cycles (the tracking error)
         self._sent: deque[tuple[float, ...]] = deque(maxlen=2)
         self._prev_c: dict[str, float] = {}
@@ -218,8 +221,11 @@ class CellSource:
         j0 = 0
         for rc in self.cell.robots:
             n = len(rc.axes)
+            rs = rc.spec.robot
             self._machines.append((self.run.robots[rc.name], rc.machine(), j0, n,
-                                   rc.spec.robot.base.inverse(), rc.spec.robot.tool.inverse()))
+                                   rs.base.inverse(), rs.tool.inverse()))
+            self._plain.append(rs.base == Location() and rs.tool == Location())
+            self._turns.append("c" in (a.name for a in rc.axes))
             j0 += n
         self._joints = list(joints)
         for name, r in self.run.robots.items():
@@ -307,10 +313,15 @@ class CellSource:
         differences over one period), robot after robot."""
         T = self.T
         joints: list[float] = []
-        for r, machine, _j0, _n, base_inv, tool_inv in self._machines:
-            real = base_inv.compound(outs[r.name].setpoint).compound(tool_inv)
-            c = self._prev_c[r.name] = _unwrap(q_twist_angle(real.ori, _Z),
-                                               self._prev_c[r.name])
+        for (r, machine, _j0, _n, base_inv, tool_inv), plain, turns in zip(
+                self._machines, self._plain, self._turns):
+            real = outs[r.name].setpoint
+            if not plain:   # (base and tool identity: Robot_real is the setpoint)
+                real = base_inv.compound(real).compound(tool_inv)
+            c = 0.0
+            if turns:       # (a robot without a tool axis c: its angle is not driven)
+                c = self._prev_c[r.name] = _unwrap(q_twist_angle(real.ori, _Z),
+                                                   self._prev_c[r.name])
             joints.extend(machine.joints(_state(real, c)))
         prev_j = self._joints
         vel = tuple((a - b) / T for a, b in zip(joints, prev_j))
