@@ -70,7 +70,7 @@ from ..master.source import (
     TrackTypes,
 )
 
-__all__ = ["CellSource", "RobotSummary"]
+__all__ = ["CellSource", "RobotSummary", "format_cell_table", "frame_counts"]
 
 _Z = (0.0, 0.0, 1.0)
 _XYZ = frozenset("xyz")
