@@ -24,6 +24,7 @@ with MASTER_LOST), and the conditioner starts again from the next sample.
 
 from __future__ import annotations
 
+from collections import deque
 from typing import TYPE_CHECKING
 
 from ...kinematics import EncoderScale
@@ -60,6 +61,13 @@ class MasterInput:
         self._pos = self.codec.position(c.index, c.sub_index)
         self.scale = EncoderScale(c.counts_per_mm, c.modulus, c.sign)
         self.lead = 1 + cfg.tracking.drive_delay_cycles
+        self.period_s = cfg.period_s
+        #: the frame's VelocityMax [mm/s]: the fastest belt the lateness correction believes
+        self.max_vel = cfg.tracking.tracker.master_max_trans.vel
+        #: this cycle's SYNC on the nominal time axis [s] (periods counted, slips included)
+        self._t_nominal_s = 0.0
+        #: the fresh samples as measured: (when taken [s, nominal + lateness], belt [mm])
+        self._measured: deque[tuple[float, float]] = deque(maxlen=max(3, c.window))
         self.estimator: MasterEstimator | None = None
         self.conditioner: MasterConditioner | None = None
         if c.conditioning is None:
@@ -124,13 +132,38 @@ class MasterInput:
         gets its own prediction for each of them, so that its samples stay one period
         apart (else the next real sample looks like a velocity jump)."""
         if self.conditioner is not None:
+            self._t_nominal_s += periods * self.period_s
             for _ in range(periods):
                 self.conditioner.update(None)  # coasts
             return
         est = self.estimator
         assert est is not None  # one of the two
-        for _ in range(periods if est.samples else 0):
-            est.push(est.estimate(1.0 - est.lead).pos)
+        for _ in range(periods):
+            t_nom = self._t_nominal_s
+            self._t_nominal_s = t_nom + self.period_s
+            if est.samples:
+                est.push(self._coast(t_nom))
+
+    def _coast(self, t_nom: float) -> float:
+        """A virtual sample [mm] for a SYNC without one (missing, or skipped by an
+        overrun): the belt at ``t_nom`` on the chord of the measured samples of the window
+        (their velocity, within VelocityMax), else, before two, the estimator's own
+        prediction.  Not the fit's quadratic prediction: pushed among real samples it fed
+        its acceleration back (each real sample after a coast bent the fit, the next coast
+        went further off: half the samples missing at 1 ms, a real-time run, 8 m/s² and
+        then 1e25 mm within seconds).  A belt accelerating at 1000 mm/s² moves 12 um off
+        the chord in 5 missing ms."""
+        m = self._measured
+        if len(m) >= 2:
+            (t0, x0), (t1, x1) = m[0], m[-1]
+            if t1 > t0:
+                v = (x1 - x0) / (t1 - t0)
+                v = self.max_vel if v > self.max_vel else -self.max_vel \
+                    if v < -self.max_vel else v
+                return x1 + v * (t_nom - t1)
+        est = self.estimator
+        assert est is not None  # (the estimator's path)
+        return est.estimate(1.0 - est.lead).pos
 
     def update(self, cycle: int, sync_late_s: float = 0.0
                ) -> tuple[str | None, MasterEstimate | None]:
@@ -140,7 +173,13 @@ class MasterInput:
         the SYNC arrives, so the sample is moved back to the nominal SYNC time with the
         estimated velocity (s - v * late): SYNC jitter would otherwise enter the estimate
         as position noise (0.3 mm for 1 ms late at 300 mm/s, and in a 1 ms quadratic fit
-        an acceleration spike above the frame's AccelerationMax).
+        an acceleration spike above the frame's AccelerationMax).  The velocity is the
+        slope of the measured samples over the window against the times they were taken
+        (nominal + lateness), not the estimate's: the estimate is fed by this very
+        correction, a loop with a gain of (the fit's weight of the newest sample in the
+        velocity) x lateness, 3.5 for 3 samples at 1 ms and 1 ms late, which diverged (a
+        real-time run at 1 ms reached 1e32 mm and missed every item).  Within the frame's
+        VelocityMax; the first late sample after a start is only timed, not fitted.
         event: None, "silent" (first cycle over the limit) or "back"; with the conditioner
         also "outlier" (``outlier_mm`` holds its size) and "lost".
         """
@@ -149,24 +188,38 @@ class MasterInput:
         event = None
         est = self.estimator
         assert est is not None  # one of the two
+        t_nom = self._t_nominal_s
+        self._t_nominal_s = t_nom + self.period_s
         if self.fresh(cycle):
             raw = self.snapshot[0]
             if self.lost:
                 self.lost = False
                 est.reset()
+                self._measured.clear()
                 event = "back"
             self.raw = raw
             self.belt_mm = self.scale.belt_mm(raw)
             sample = self.belt_mm
-            if sync_late_s and self.last_estimate is not None:
-                sample -= self.last_estimate.vel * sync_late_s
-            est.push(sample)
+            measured = self._measured
+            measured.append((t_nom + sync_late_s, sample))
+            fit = True
+            if sync_late_s:
+                if len(measured) < 2:
+                    fit = False  # (the first after a start: only timed, not fitted)
+                else:
+                    (t0, x0), (t1, x1) = measured[0], measured[-1]
+                    v = (x1 - x0) / (t1 - t0) if t1 > t0 else 0.0
+                    v = self.max_vel if v > self.max_vel else -self.max_vel \
+                        if v < -self.max_vel else v
+                    sample -= v * sync_late_s
+            if fit:
+                est.push(sample)
             self.silent = 0
         else:
             self.raw = None
             self.silent += 1
             if est.samples:
-                est.push(est.estimate(1.0 - est.lead).pos)  # the position at t_k
+                est.push(self._coast(t_nom))  # the position at t_k
             if self.silent >= self.conf.silent_cycles and not self.lost:
                 self.lost = True
                 event = "silent"
