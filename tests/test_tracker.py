@@ -291,3 +291,49 @@ def test_functional_change_2_partial_limits_in_files_start_at_the_robot_maxima(t
     assert tp.sync_trans == Limits(1000.0, 50000.0, 1.0e6)
     assert tp.desync_trans == Limits(5000.0, 50000.0, 1.0e6)
     assert tp.sample_time_s == 0.002
+
+
+# -- the SYNCED follower's copy test: the written-out 3-D and 1-D forms vs the reference loop --
+def _follow_case(rng, jerk: bool):
+    """A setpoint history on a master moving at constant acceleration (+ jerk), disturbed
+    by a fraction of what the limits allow per sample: the copy test passes or fails."""
+    from controller.tracking.follow import SyncFollower
+
+    T = 0.001
+    fo = SyncFollower(Limits(800.0, 8000.0, 80000.0), T)
+    scale = rng.choice([0.0, 1e-9, 1e-7, 1e-6, 1e-5, 1e-3])
+    v0 = rng.uniform(-400.0, 400.0, 3)
+    a0 = rng.uniform(-4000.0, 4000.0, 3)
+    j0 = rng.uniform(-40000.0, 40000.0, 3) if jerk else np.zeros(3)
+    ts = np.array([-3 * T, -2 * T, -T, 0.0])
+    pos = [tuple(float(x) for x in 100.0 + v0 * t + a0 * t * t / 2 + j0 * t ** 3 / 6
+                 + rng.normal(0.0, 1.0, 3) * scale) for t in ts]
+    vel = tuple(float(x) for x in v0 - a0 * T + j0 * T * T / 2
+                + rng.normal(0.0, 1.0, 3) * scale * 1e3)
+    acc = tuple(float(x) for x in a0 - j0 * T + rng.normal(0.0, 1.0, 3) * scale * 1e6)
+    mj = tuple(float(x) for x in j0)
+    if not jerk and rng.random() < 0.5:
+        mj = (0.0, -0.0, 0.0)
+    mp, mv, ma = pos[3], tuple(float(x) for x in v0), tuple(float(x) for x in a0)
+    return fo, (pos[2], vel, acc, mp, mv, ma, pos[1], pos[0], mj)
+
+
+@pytest.mark.parametrize("jerk", [False, True])
+def test_follower_copy_test_written_out_forms_agree_with_the_loop(jerk):
+    """``SyncFollower._copyable3`` / ``copyable1`` (written out, the jerk terms dropped for a
+    master without jerk) give the reference loop's answer (``_copyable_n``) on every case:
+    both answers occur."""
+    rng = np.random.default_rng(7 + jerk)
+    answers = []
+    for _ in range(3000):
+        fo, (p, v, a, mp, mv, ma, p2, p3, mj) = _follow_case(rng, jerk)
+        ref = fo._copyable_n(p, v, a, mp, mv, ma, p2, p3, mj)
+        assert fo._copyable3(p, v, a, mp, mv, ma, p2, p3, mj) == ref
+        assert fo._copyable3(p, v, a, mp, mv, ma, p2, p3, None) == fo._copyable_n(
+            p, v, a, mp, mv, ma, p2, p3, None)
+        for i in range(3):
+            one = fo.copyable1(p[i], v[i], a[i], mp[i], mv[i], ma[i], p2[i], p3[i], mj[i])
+            assert one == fo._copyable_n((p[i],), (v[i],), (a[i],), (mp[i],), (mv[i],),
+                                         (ma[i],), (p2[i],), (p3[i],), (mj[i],))
+        answers.append(ref)
+    assert 0.2 < sum(answers) / len(answers) < 0.95, sum(answers)

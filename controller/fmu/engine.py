@@ -102,7 +102,7 @@ import pickle
 import traceback
 from collections.abc import Callable
 from enum import IntEnum
-from operator import itemgetter
+from math import isfinite
 
 from ..errors import ParameterError
 from ..tracking import (
@@ -331,9 +331,11 @@ VARIABLES: list[tuple] = [
 
 #: value reference of each variable (its position in VARIABLES)
 VR: dict[str, int] = {row[0]: i for i, row in enumerate(VARIABLES)}
-_MASTER = [VR[f"master_{n}"] for n in ("x", "y", "z", "vx", "vy", "vz", "ax", "ay", "az",
-                                      "c", "vc", "ac")]
-_get_master = itemgetter(*_MASTER)
+#: the master inputs, contiguous in VARIABLES: x y z c, vx vy vz vc, ax ay az ac
+_MASTER_FIRST = VR["master_x"]
+_MASTER_END = _MASTER_FIRST + 12
+assert [row[0] for row in VARIABLES[_MASTER_FIRST:_MASTER_END]] == [
+    f"master_{n}" for n in ("x", "y", "z", "c", "vx", "vy", "vz", "vc", "ax", "ay", "az", "ac")]
 _OUT_FIRST = VR["x"]  # x y z c vx vy vz vc ax ay az ac imfs state error, contiguous
 _OUT_END = VR["error"] + 1
 assert [row[0] for row in VARIABLES[_OUT_FIRST:_OUT_END]] == [
@@ -699,52 +701,38 @@ class TrackerEngine:
         up to that grid point.  A step that reaches no new grid point within the tolerance
         (the ~5e-14 s remainder an accumulating importer sends at the stop time) is a no-op.
         """
-        if self.terminated:
-            self.report(f"{self.instance_name}: doStep at t={current_time!r} s refused: the "
-                        f"instance is terminated (only reset or free it)")
-            return ERROR
-        if self.failed is not None:
-            self.report(f"{self.instance_name}: step at t={current_time!r} s refused: the "
-                        f"instance failed earlier (set a saved FMU state or reset it). First "
-                        f"error: {self.failed}")
-            return ERROR
+        if self.terminated or self.failed is not None:
+            return self._refuse_dead(current_time)
         T = self.T
         tol = STEP_TOLERANCE * T
         if not self.t0_known:  # FMI 3 without the front library: the first step's start
             self.t0 = self.time = float(current_time)
             self.t0_known = True
         if abs(current_time - self.time) > tol:
-            self.report(f"{self.instance_name}: step at t={current_time!r} s refused: the "
-                        f"previous step ended at t={self.time!r} s (a communication step "
-                        f"starts where the last one ended; restore a saved FMU state to go "
-                        f"back); nothing changed", DISCARD)
-            return DISCARD
+            return self._refuse_start(current_time)
         end = current_time + step_size
-        k_end = round((end - self.t0) / T)
+        t0 = self.t0
+        k_end = round((end - t0) / T)
         n = k_end - self.k
-        if n < 0 or abs(end - (self.t0 + k_end * T)) > tol:
-            self.report(f"{self.instance_name}: communication step size {step_size!r} s at "
-                        f"t={current_time!r} s refused: steps must end on the sample grid "
-                        f"t0 + k*sample_time (t0={self.t0!r} s, sample_time={T!r} s, "
-                        f"tolerance {tol:.3g} s), i.e. be whole multiples of sample_time; "
-                        f"use stepSize {T!r} s (DefaultExperiment) or a multiple", DISCARD)
-            return DISCARD
+        if n < 0 or abs(end - (t0 + k_end * T)) > tol:
+            return self._refuse_grid(current_time, step_size)
         if n == 0:  # covers no sample: a no-op (outputs as they are)
             self.time = end
             return OK
-        master = _get_master(self.v)
-        if not math.isfinite(sum(master)):  # one test for all; the sum overflows rarely
-            bad = [f"{VARIABLES[vr][0]}={x!r}" for vr, x in zip(_MASTER, master)
-                   if not math.isfinite(x)]
+        v = self.v
+        master = v[_MASTER_FIRST:_MASTER_END]
+        if not isfinite(sum(master)):  # one test for all; the sum overflows rarely
+            bad = [f"{VARIABLES[vr][0]}={x!r}" for vr, x in enumerate(master, _MASTER_FIRST)
+                   if not isfinite(x)]
             if bad:
                 self.report(f"{self.instance_name}: step at t={current_time!r} s refused: "
                             f"non-finite master input {', '.join(bad)}; nothing changed "
                             f"(outputs and tracker state as at t={self.time!r} s): set finite "
                             f"values and repeat the step, or restore a saved FMU state", DISCARD)
                 return DISCARD
-        if self.conditioners is not None and not math.isfinite(self.v[_VR_TOFF]):
+        if self.conditioners is not None and not isfinite(v[_VR_TOFF]):
             self.report(f"{self.instance_name}: step at t={current_time!r} s refused: "
-                        f"non-finite encoder_time_offset={self.v[_VR_TOFF]!r}; nothing "
+                        f"non-finite encoder_time_offset={v[_VR_TOFF]!r}; nothing "
                         f"changed: set a finite value and repeat the step", DISCARD)
             return DISCARD
         try:
@@ -763,35 +751,44 @@ class TrackerEngine:
         self.k = k_end
         return OK
 
-    def _step(self, n: int, T: float, master_values: tuple) -> None:
+    def _refuse_dead(self, current_time: float) -> int:
+        if self.terminated:
+            self.report(f"{self.instance_name}: doStep at t={current_time!r} s refused: the "
+                        f"instance is terminated (only reset or free it)")
+        else:
+            self.report(f"{self.instance_name}: step at t={current_time!r} s refused: the "
+                        f"instance failed earlier (set a saved FMU state or reset it). First "
+                        f"error: {self.failed}")
+        return ERROR
+
+    def _refuse_start(self, current_time: float) -> int:
+        self.report(f"{self.instance_name}: step at t={current_time!r} s refused: the "
+                    f"previous step ended at t={self.time!r} s (a communication step "
+                    f"starts where the last one ended; restore a saved FMU state to go "
+                    f"back); nothing changed", DISCARD)
+        return DISCARD
+
+    def _refuse_grid(self, current_time: float, step_size: float) -> int:
+        T = self.T
+        self.report(f"{self.instance_name}: communication step size {step_size!r} s at "
+                    f"t={current_time!r} s refused: steps must end on the sample grid "
+                    f"t0 + k*sample_time (t0={self.t0!r} s, sample_time={T!r} s, "
+                    f"tolerance {STEP_TOLERANCE * T:.3g} s), i.e. be whole multiples of "
+                    f"sample_time; use stepSize {T!r} s (DefaultExperiment) or a multiple",
+                    DISCARD)
+        return DISCARD
+
+    def _step(self, n: int, T: float, master_values: list[float]) -> None:
+        """The samples of a step; ``master_values``: the master inputs (x y z c, vx vy vz
+        vc, ax ay az ac)."""
         tracker = self.tracker
         v = self.v
         engage = bool(v[_VR_ENGAGE])
         if engage != self.engage_prev or self.engage_held:
-            if engage and not self.master_ready:
-                # the conditioned master is not usable yet: the edge waits (engage_prev
-                # stays False, so the next step sees it again)
-                if not self.engage_held:
-                    self.engage_held = True
-                    self.report(f"{self.instance_name}: engage at t={self.time!r} s waits: "
-                                f"the conditioned master is "
-                                f"{MasterStatus(v[_VR_MSTATUS]).name} (master_status="
-                                f"{v[_VR_MSTATUS]}); it acts at the first step after "
-                                f"master_status is 1 or 2", WARNING)
-            elif engage:
-                params = self.current_params()  # may raise ParameterError: nothing changed yet
-                tracker = Tracker(params, tracker.setpoint)
-                tracker.engage()
-                self.tracker, self.params = tracker, params
-                self.engage_prev, self.engage_held = True, False
-            elif self.engage_prev:
-                tracker.disengage()
-                self.engage_prev = False
-            else:  # engage fell while it waited
-                self.engage_held = False
+            tracker = self._engage_edge(engage, tracker)
         if self.conditioners is not None:
             return self._step_encoder(n, tracker, master_values)
-        mx, my, mz, mvx, mvy, mvz, max_, may, maz, mc, mvc, mac = master_values
+        mx, my, mz, mc, mvx, mvy, mvz, mvc, max_, may, maz, mac = master_values
         assert tracker is not None  # initialised (before it a step fails like an exception)
         advance = tracker.advance  # (update without its output record: read back below)
         if n == 1:
@@ -807,14 +804,43 @@ class TrackerEngine:
             for i in range(1, n + 1):
                 advance(master.extrapolated(i * T))
         sp = tracker.setpoint
-        p, vel, a = sp.pos, sp.vel, sp.acc
         state = tracker.state
         # the enums are ints (IntEnum): stored as they are
-        v[_OUT_FIRST:_OUT_END] = (p[0], p[1], p[2], sp.ang, vel[0], vel[1], vel[2], sp.ang_vel,
-                                  a[0], a[1], a[2], sp.ang_acc, tracker.imfs, state,
-                                  tracker.error)
+        v[_OUT_FIRST:_OUT_END] = (*sp.pos, sp.ang, *sp.vel, sp.ang_vel, *sp.acc, sp.ang_acc,
+                                  tracker.imfs, state, tracker.error)
 
-    def _step_encoder(self, n: int, tracker: Tracker | None, master_values: tuple) -> None:
+    def _engage_edge(self, engage: bool, tracker: Tracker | None) -> Tracker | None:
+        """An engage edge (or an engage waiting for the conditioned master) at the step
+        start: the tracker the step runs (a new one at a rising edge).  Raises
+        ParameterError (nothing changed) for an invalid tunable at a rising edge."""
+        v = self.v
+        if engage and not self.master_ready:
+            # the conditioned master is not usable yet: the edge waits (engage_prev stays
+            # False, so the next step sees it again)
+            if not self.engage_held:
+                self.engage_held = True
+                self.report(f"{self.instance_name}: engage at t={self.time!r} s waits: "
+                            f"the conditioned master is "
+                            f"{MasterStatus(v[_VR_MSTATUS]).name} (master_status="
+                            f"{v[_VR_MSTATUS]}); it acts at the first step after "
+                            f"master_status is 1 or 2", WARNING)
+        elif engage:
+            assert tracker is not None
+            params = self.current_params()  # may raise ParameterError: nothing changed yet
+            tracker = Tracker(params, tracker.setpoint)
+            tracker.engage()
+            self.tracker, self.params = tracker, params
+            self.engage_prev, self.engage_held = True, False
+        elif self.engage_prev:
+            assert tracker is not None
+            tracker.disengage()
+            self.engage_prev = False
+        else:  # engage fell while it waited
+            self.engage_held = False
+        return tracker
+
+    def _step_encoder(self, n: int, tracker: Tracker | None,
+                      master_values: list[float]) -> None:
         """The samples of a step with raw encoder inputs (master_input=1): the step's
         positions go to the conditioners at its first sample, the others coast (one sample
         per communication step: docs/spec/master-conditioning.md#3.2); each sample's
@@ -823,7 +849,7 @@ class TrackerEngine:
         conds = self.conditioners
         assert conds is not None and tracker is not None  # initialised: the caller checked
         cx, cy, cz, cc = conds
-        raw = master_values[0], master_values[1], master_values[2], master_values[9]
+        raw = master_values[0], master_values[1], master_values[2], master_values[3]
         off = float(self.v[_VR_TOFF])
         update = tracker.update
         for i in range(n):

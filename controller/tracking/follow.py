@@ -32,6 +32,8 @@ from typing import Any
 from ..limits import Limits
 from .vec import Vec
 
+_ZERO3 = (0.0, 0.0, 0.0)
+
 #: lengths (mm or deg) -> Ruckig units (m or kdeg), as in optimal.py
 _S = 1e-3
 #: share of a limit kept when the master itself uses all of it (no bound of zero width)
@@ -159,37 +161,88 @@ class SyncFollower:
             return False
         if p2 is None or p3 is None:
             return True
-        j0, j1, j2 = (0.0, 0.0, 0.0) if mj is None else mj
         # per component: the differences e of the positions p3, p2, p, m, m(+1), m(+2)
-        # and their differences c; the sums over the components of the three steps' first,
-        # second and third differences (the loop's d1, x, y)
-        fv3 = fa3 = fj3 = fv4 = fa4 = fj4 = fv5 = fa5 = fj5 = 0.0
-        for q3, q2, q, m, mvi, mai, mji in ((p3[0], p2[0], p0, m0, n0, b0, j0),
-                                            (p3[1], p2[1], p1, m1, n1, b1, j1),
-                                            (p3[2], p2[2], p2_, m2, n2, b2, j2)):
-            s4 = m + mvi * T + mai * h + mji * h3
-            s5 = m + 2.0 * (mvi * T + mai * 2.0 * h) + 8.0 * mji * h3
-            e0 = q2 - q3
-            e1 = q - q2
-            e2 = m - q
-            e3 = s4 - m
-            e4 = s5 - s4
-            c1 = e1 - e0
-            c2 = e2 - e1
-            c3 = e3 - e2
-            c4 = e4 - e3
-            fv3 += e2 * e2
-            fa3 += c2 * c2
-            x = c2 - c1
-            fj3 += x * x
-            fv4 += e3 * e3
-            fa4 += c3 * c3
-            x = c3 - c2
-            fj4 += x * x
-            fv5 += e4 * e4
-            fa5 += c4 * c4
-            x = c4 - c3
-            fj5 += x * x
+        # (m(+1), m(+2): the master going on with its jerk) and their differences c; the
+        # sums over the components of the three steps' first, second and third differences
+        # (the loop's d1, x, y), written out component by component.  The master's next
+        # positions drop the jerk terms when its jerk is zero: they add an exact zero, which
+        # can only change the sign of a zero, and every value compared is a sum of squares.
+        vt0, vt1, vt2 = n0 * T, n1 * T, n2 * T
+        if mj is None or mj == _ZERO3:
+            s40 = m0 + vt0 + b0 * h
+            s41 = m1 + vt1 + b1 * h
+            s42 = m2 + vt2 + b2 * h
+            s50 = m0 + 2.0 * (vt0 + b0 * 2.0 * h)
+            s51 = m1 + 2.0 * (vt1 + b1 * 2.0 * h)
+            s52 = m2 + 2.0 * (vt2 + b2 * 2.0 * h)
+        else:
+            j0, j1, j2 = mj
+            s40 = m0 + vt0 + b0 * h + j0 * h3
+            s41 = m1 + vt1 + b1 * h + j1 * h3
+            s42 = m2 + vt2 + b2 * h + j2 * h3
+            s50 = m0 + 2.0 * (vt0 + b0 * 2.0 * h) + 8.0 * j0 * h3
+            s51 = m1 + 2.0 * (vt1 + b1 * 2.0 * h) + 8.0 * j1 * h3
+            s52 = m2 + 2.0 * (vt2 + b2 * 2.0 * h) + 8.0 * j2 * h3
+        q0, q1, q2 = p2
+        r0, r1, r2 = p3
+        # x
+        e1 = p0 - q0
+        e2 = m0 - p0
+        e3 = s40 - m0
+        e4 = s50 - s40
+        c1 = e1 - (q0 - r0)
+        c2 = e2 - e1
+        c3 = e3 - e2
+        c4 = e4 - e3
+        fv3, fa3, fv4, fa4, fv5, fa5 = e2 * e2, c2 * c2, e3 * e3, c3 * c3, e4 * e4, c4 * c4
+        x = c2 - c1
+        fj3 = x * x
+        x = c3 - c2
+        fj4 = x * x
+        x = c4 - c3
+        fj5 = x * x
+        # y
+        e1 = p1 - q1
+        e2 = m1 - p1
+        e3 = s41 - m1
+        e4 = s51 - s41
+        c1 = e1 - (q1 - r1)
+        c2 = e2 - e1
+        c3 = e3 - e2
+        c4 = e4 - e3
+        fv3 += e2 * e2
+        fa3 += c2 * c2
+        fv4 += e3 * e3
+        fa4 += c3 * c3
+        fv5 += e4 * e4
+        fa5 += c4 * c4
+        x = c2 - c1
+        fj3 += x * x
+        x = c3 - c2
+        fj4 += x * x
+        x = c4 - c3
+        fj5 += x * x
+        # z
+        e1 = p2_ - q2
+        e2 = m2 - p2_
+        e3 = s42 - m2
+        e4 = s52 - s42
+        c1 = e1 - (q2 - r2)
+        c2 = e2 - e1
+        c3 = e3 - e2
+        c4 = e4 - e3
+        fv3 += e2 * e2
+        fa3 += c2 * c2
+        fv4 += e3 * e3
+        fa4 += c3 * c3
+        fv5 += e4 * e4
+        fa5 += c4 * c4
+        x = c2 - c1
+        fj3 += x * x
+        x = c3 - c2
+        fj4 += x * x
+        x = c4 - c3
+        fj5 += x * x
         return not (fv3 > lv or fa3 > la or fj3 > lj or fv4 > lv or fa4 > la or fj4 > lj
                     or fv5 > lv or fa5 > la or fj5 > lj)
 
@@ -211,8 +264,13 @@ class SyncFollower:
             return False
         if p2 is None or p3 is None:
             return True
-        s4 = mp + mv * T + ma * h + mj * h3
-        s5 = mp + 2.0 * (mv * T + ma * 2.0 * h) + 8.0 * mj * h3
+        vt = mv * T
+        if mj == 0.0:  # the jerk terms add an exact zero (see _copyable3)
+            s4 = mp + vt + ma * h
+            s5 = mp + 2.0 * (vt + ma * 2.0 * h)
+        else:
+            s4 = mp + vt + ma * h + mj * h3
+            s5 = mp + 2.0 * (vt + ma * 2.0 * h) + 8.0 * mj * h3
         e0 = p2 - p3
         e1 = p - p2
         e2 = mp - p

@@ -43,7 +43,10 @@ from .vec import Vec, vec3
 #: None for the default straight-line stops.  The conveyor model supplies arcs this way.
 DesyncBuilder = Callable[["Tracker"], "tuple[Desync, Desync] | None"]
 
-_SYNCING, _SYNCED = TrackState.SYNCING, TrackState.SYNCED
+_SYNCING, _SYNCED, _DESYNCING = TrackState.SYNCING, TrackState.SYNCED, TrackState.DESYNCING
+_RELATIVE = Mode.RELATIVE
+_NO_ERROR, _MASTER_VELOCITY, _MASTER_ACCELERATION = (
+    TrackError.NONE, TrackError.MASTER_VELOCITY, TrackError.MASTER_ACCELERATION)
 #: IMFS per state, indexed by the state's value (an IntEnum indexes a tuple directly; a dict
 #: would hash the member with Enum's Python-level __hash__)
 _IMFS: tuple[Imfs, ...] = (Imfs.NOT_SYNCHRONIZED, Imfs.NOT_SYNCHRONIZED, Imfs.SYNCHRONIZED,
@@ -76,6 +79,10 @@ class Tracker:
             OscillationMonitor(params.max_flops, window,
                                params.filter_factor * self.limits.sync_rot.acc * self.T))
         self._timeout_samples = max(1, round(params.approach_timeout_s / self.T))
+        #: the moving frame's VelocityMax/AccelerationMax (translation, rotation) the master
+        #: is checked against: (vel, rot vel, acc, rot acc) [mm/s, deg/s, mm/s^2, deg/s^2]
+        mt, mr = params.master_max_trans, params.master_max_rot
+        self._master_max = (mt.vel, mr.vel, mt.acc, mr.acc)
         #: SYNCED followers (translation, rotation); None: copy the master (as published)
         self._follow: tuple[SyncFollower, SyncFollower] | None = (
             (SyncFollower(self.limits.sync_trans, self.T),
@@ -199,14 +206,14 @@ class Tracker:
         self.desync_count += 1
 
     def _check_master(self, m: MotionState) -> TrackError:
-        mt, mr = self.params.master_max_trans, self.params.master_max_rot
+        vel_max, rot_vel_max, acc_max, rot_acc_max = self._master_max
         x, y, z = m.vel  # (the norms written out: _norm's sums, in its order)
-        if math.sqrt(x * x + y * y + z * z) > mt.vel or abs(m.ang_vel) > mr.vel:
-            return TrackError.MASTER_VELOCITY
+        if math.sqrt(x * x + y * y + z * z) > vel_max or abs(m.ang_vel) > rot_vel_max:
+            return _MASTER_VELOCITY
         x, y, z = m.acc
-        if math.sqrt(x * x + y * y + z * z) > mt.acc or abs(m.ang_acc) > mr.acc:
-            return TrackError.MASTER_ACCELERATION
-        return TrackError.NONE
+        if math.sqrt(x * x + y * y + z * z) > acc_max or abs(m.ang_acc) > rot_acc_max:
+            return _MASTER_ACCELERATION
+        return _NO_ERROR
 
     # -- the cyclic call ------------------------------------------------------------
     def _hist_t(self) -> tuple:
@@ -258,7 +265,7 @@ class Tracker:
                 self._start_desync(k - 1)
                 state = self.state
 
-        if state == TrackState.SYNCING:
+        if state is _SYNCING:
             m = self._shifted(master)
             pl_t, pl_r = self._planners
             fo = self._follow
@@ -302,7 +309,7 @@ class Tracker:
             if self.error and self.state == TrackState.SYNCING:
                 self._start_desync(k)
         elif state is _SYNCED:
-            m = master if self.mode != Mode.RELATIVE else self._shifted(master)
+            m = master if self.mode != _RELATIVE else self._shifted(master)
             fo = self._follow
             if fo is None:
                 self.setpoint = m
@@ -322,7 +329,7 @@ class Tracker:
                                                         h2.ang, h3.ang)
                 self.setpoint = MotionState(vec3(pos), vec3(vel), vec3(acc), ang, ang_vel,
                                             ang_acc)
-        elif state == TrackState.DESYNCING:
+        elif state is _DESYNCING:
             t = (k - self._desync_start) * self.T
             assert self._desync is not None  # set with the DESYNCING state
             tr, rot = self._desync
