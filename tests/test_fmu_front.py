@@ -209,3 +209,30 @@ def test_reset_reattaches_the_value_list(fmu_path):
         again = fmu.run(scenario, 200, T)
     assert again.reals == first.reals and again.ints == first.ints
     assert {row[1] for row in first.ints} == {0, 1, 3}
+
+
+def test_fmi2_step_exception_outside_the_engine_guard_is_an_error(fmu2_path, monkeypatch,
+                                                                     capfd):
+    """FMI 2: the front calls the engine's step directly; an exception that escapes it
+    (here from the refusal after terminate) is Error with a message, its traceback on
+    stderr, and the host goes on."""
+    from controller.fmu.runner import bundled_module
+
+    with FmuTracker(fmu2_path, start_values={"planner": 0}, logging_on=False) as fmu:
+        fmu.run(conveyor_scenario(T), 3, T)
+        fmu.slave.terminate()
+        engine = bundled_module(fmu2_path, "fmu.engine").TrackerEngine
+
+        def broken(self, current_time):
+            raise RuntimeError("refusal broke")
+
+        monkeypatch.setattr(engine, "_refuse_dead", broken)
+        with pytest.raises(FMICallException):
+            fmu.slave.doStep(fmu.time, T)
+        assert [m[0] for m in fmu.messages] == [3]
+        assert "the engine raised an exception" in fmu.messages[0][2]
+        monkeypatch.undo()
+        with pytest.raises(FMICallException):  # the usual refusal again
+            fmu.slave.doStep(fmu.time, T)
+        assert "instance is terminated" in fmu.messages[-1][2]
+    assert "RuntimeError: refusal broke" in capfd.readouterr().err

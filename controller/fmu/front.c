@@ -38,7 +38,8 @@
  *    Python and into the front's copy; after exitInitializationMode and SetFMUState the
  *    front reads the inputs back.  The importer's references from PRIVATE_BASE on are
  *    refused.  Where the list cannot be had (Python's C API not found), every call goes to
- *    Python as it is.
+ *    Python as it is.  FMI 2: the front calls the engine's step itself (fmi2DoStep), not
+ *    through the wrapper's doStep; FMI 3 steps through pythonfmu3's.
  * Every other FMI function jumps straight into the wrapper (an x86_64 trampoline, no cost).
  *
  * Compile-time definitions (set by the build): FMI_VERSION (2 or 3), MODEL (model
@@ -139,6 +140,8 @@ typedef struct Instance {
     double in_value[N_IN + 1];
     double out_value[N_OUT + 1];
     void *values;        /* the engine's value list (a PyObject *, a reference held) */
+    void *step_fn;       /* FMI 2: the engine's do_step (a reference held), see fmi2DoStep */
+    void *log_queue;     /* FMI 2: the wrapper's log queue (a reference held) */
 #if FMI_VERSION == 2
     void *callbacks[5];  /* fmi2CallbackFunctions handed to the wrapper (logger replaced) */
 #endif
@@ -364,6 +367,10 @@ static struct {
     void (*DecRef)(PyObject *);
     PyObject *(*Err_Occurred)(void);
     void (*Err_Clear)(void);
+    void (*Err_Print)(void);
+    PyObject *(*Vectorcall)(PyObject *, PyObject *const *, size_t, PyObject *);
+    long (*Long_AsLong)(PyObject *);
+    int (*Callable_Check)(PyObject *);
     int ok;
 } py;
 static pthread_once_t py_once = PTHREAD_ONCE_INIT;
@@ -384,6 +391,10 @@ static void resolve_python_api(void) {
     PY_API(DecRef, "Py_DecRef")
     PY_API(Err_Occurred, "PyErr_Occurred")
     PY_API(Err_Clear, "PyErr_Clear")
+    PY_API(Err_Print, "PyErr_Print")
+    PY_API(Vectorcall, "PyObject_Vectorcall")
+    PY_API(Long_AsLong, "PyLong_AsLong")
+    PY_API(Callable_Check, "PyCallable_Check")
 #undef PY_API
     py.ok = ok;
 }
@@ -450,30 +461,41 @@ static void detach(Instance *inst) {
     if (!inst->values) return;
     int gil = py.GILState_Ensure();
     py.DecRef(inst->values);
+    if (inst->step_fn) py.DecRef(inst->step_fn);
+    if (inst->log_queue) py.DecRef(inst->log_queue);
     py.GILState_Release(gil);
-    inst->values = NULL;
+    inst->values = inst->step_fn = inst->log_queue = NULL;
 }
 
-/* the engine's value list, from a get of VALUE_LIST_VR (its address as a double), checked
-   to be a list of N_VARIABLES; without it every call goes to Python */
+/* from a get of the private references (the objects' addresses as doubles): the engine's
+   value list (VALUE_LIST_VR, checked to be a list of N_VARIABLES), and for FMI 2 its step
+   function and the wrapper's log queue (VALUE_LIST_VR + 1, + 2; see fmi2DoStep); without
+   the list every call goes to Python */
 static void attach(Instance *inst) {
     if (N_IN + N_OUT == 0) return;
     detach(inst);
     pthread_once(&py_once, resolve_python_api);
     if (!py.ok) return;
-    const unsigned int vr = VALUE_LIST_VR;
-    double address = 0.0;
+    const unsigned int vrs[3] = {VALUE_LIST_VR, VALUE_LIST_VR + 1, VALUE_LIST_VR + 2};
+    double address[3] = {0.0, 0.0, 0.0};
+    size_t n = FMI_VERSION == 2 ? 3 : 1;
     inst->worst = 0;
-    if (wrapper_get_doubles(inst, &vr, 1, &address) != 0 || inst->worst || address <= 0.0)
+    if (wrapper_get_doubles(inst, vrs, n, address) != 0 || inst->worst || address[0] <= 0.0)
         return;
-    PyObject *list = (PyObject *)(uintptr_t)address;
+    PyObject *list = (PyObject *)(uintptr_t)address[0];
+    PyObject *step = n == 3 ? (PyObject *)(uintptr_t)address[1] : NULL;
+    PyObject *queue = n == 3 ? (PyObject *)(uintptr_t)address[2] : NULL;
     int gil = py.GILState_Ensure();
     if (py.List_Size(list) == N_VARIABLES) {
         py.IncRef(list);
         inst->values = list;
-    } else {
-        py.Err_Clear();
+        if (step && queue && py.Callable_Check(step) && py.List_Size(queue) >= 0) {
+            py.IncRef(step);
+            py.IncRef(queue);
+            inst->step_fn = step, inst->log_queue = queue;
+        }
     }
+    py.Err_Clear();
     py.GILState_Release(gil);
 }
 
@@ -743,9 +765,51 @@ EXPORT int fmi2SetFMUstate(void *c, void *state) {
     return resync(inst, status_of(inst, WRAPPED(State2, fmi2SetFMUstate)(c, state)));
 }
 
+/* The engine's do_step called directly (GIL held): it returns the FMI status (OK, Discard,
+   Error) and catches its own exceptions, as the slave's do_step that the wrapper would call
+   does; the wrapper's path around it (a method looked up by name, its arguments built from
+   a format, its log queue read back) costs more than the call itself.  Messages the step
+   logged are in the wrapper's queue: a get of no values lets the wrapper hand them to the
+   front's logger (and so to the call's status) as after any of its calls. */
+static int direct_step2(Instance *inst, double t, double h) {
+    PyObject *args[2] = {py.Float_FromDouble(t), py.Float_FromDouble(h)};
+    PyObject *result = args[0] && args[1] ? py.Vectorcall(inst->step_fn, args, 2, NULL) : NULL;
+    if (args[0]) py.DecRef(args[0]);
+    if (args[1]) py.DecRef(args[1]);
+    long code = result ? py.Long_AsLong(result) : -1;
+    if (result) py.DecRef(result);
+    int status;
+    if (code >= 0 && code <= STATUS_ERROR) {
+        status = (int)code;
+    } else {
+        if (py.Err_Occurred()) py.Err_Print();
+        log_error(inst, MODEL ": doStep: the engine raised an exception (printed on stderr)");
+        status = STATUS_ERROR;
+    }
+    if (py.List_Size(inst->log_queue) > 0) {
+        unsigned int none = 0;
+        double nothing = 0.0;
+        WRAPPED(GetReal2, fmi2GetReal)(inst->handle, &none, 0, &nothing);
+    }
+    return status;
+}
+
 EXPORT int fmi2DoStep(void *c, double t, double h, int noSetPrior) {
     Instance *inst = usable(c);
     if (!inst) return STATUS_ERROR;
+    if (inst->step_fn && inst->io_on) {
+        int gil = py.GILState_Ensure();
+        int pushed = push_inputs(inst);
+        if (pushed) {
+            py.GILState_Release(gil);
+            return pushed;
+        }
+        inst->worst = 0;
+        int stepped = status_of(inst, direct_step2(inst, t, h));
+        inst->out_valid = read_values(inst, out_vrs, N_OUT, inst->out_value) == 0;
+        py.GILState_Release(gil);
+        return stepped;
+    }
     STEP(inst, ((int (*)(void *, double, double, int))wrapped(&w_fmi2DoStep, "fmi2DoStep"))(
                    c, t, h, noSetPrior));
 }

@@ -70,6 +70,8 @@ class CanTracker(EngineStateMixin, Fmi2Slave):
         self._int = engine.by_type["Integer"]
         self._bool = engine.by_type["Boolean"]
         self._settable = engine.settable  # changes at exitInitializationMode (fixed ones)
+        #: what the front library calls for a step (do_step's own semantics: the FMI status)
+        self._direct_step = engine.do_step
         warning = ruckig_warning("CanTracker", eng.OPTIMAL_IMPORT_ERROR)
         if warning:
             engine.report(warning, eng.WARNING)
@@ -141,12 +143,22 @@ class CanTracker(EngineStateMixin, Fmi2Slave):
     def get_real(self, vrs):
         if not self._real.issuperset(vrs):
             if vrs and vrs[0] >= self._eng.PRIVATE_BASE:  # the front library's
-                return self._engine.private_get(vrs)
+                return self._private_get(vrs)
             self._engine.check("Real", vrs)
         if self._engine.tracker is None:
             self._engine.refresh_initial()
         v = self._v
         return [v[vr] for vr in vrs]
+
+    def _private_get(self, vrs):
+        """The front library's private references: the engine's value list, its step
+        (called by the front directly, see front.c fmi2DoStep) and pythonfmu's log queue,
+        each object's address as a float (``engine.VALUE_LIST_VR`` + 0, 1, 2)."""
+        base = self._eng.VALUE_LIST_VR
+        if len(vrs) != 3 or list(vrs) != [base, base + 1, base + 2]:
+            return self._engine.private_get(vrs)
+        return [self._engine.private_get([base])[0], float(id(self._direct_step)),
+                float(id(self.log_queue))]
 
     get_integer = EngineStateMixin._get_integers
     get_boolean = EngineStateMixin._get_booleans
