@@ -88,17 +88,25 @@ def test_cases_are_deterministic():
 
 
 def test_encoder_timing_against_a_baseline_checkout(tmp_path):
-    """benchmarks/encoder.py --baseline: the ideal update of another checkout is timed in a
-    child process on the same cases (here this tree as its own baseline: the child must
-    import the checkout's controller, the cases' digest must match), interleaved with this
-    tree's; a directory that is not a checkout is refused by name."""
+    """benchmarks/encoder.py --baseline: another checkout's update is timed in a child
+    process on the same cases (here this tree as its own baseline: the child must import
+    the checkout's controller, the cases' digest must match), on the ideal master and on the
+    same encoder stream through its MasterEstimator, interleaved with this tree's; both
+    ratios are targets; a directory that is not a checkout is refused by name."""
     enc = pytest.importorskip("benchmarks.encoder")
     res = enc.timing(bench.timing_cases, 1, 1, baseline=ROOT, rounds=1)
-    assert [m for m, _ in res["rounds"]] == ["ideal", "conditioned", "baseline"]
+    assert [m for m, _ in res["rounds"]] == ["ideal", "conditioned", "baseline",
+                                             "baseline_encoder"]
     assert res["baseline"] > 0.0 and res["ratio_baseline"] == pytest.approx(
         res["conditioned"] / res["baseline"])
+    assert res["baseline_encoder"] > 0.0 and res["ratio_baseline_encoder"] == pytest.approx(
+        res["conditioned"] / res["baseline_encoder"])
     assert res["baseline_path"] == str(ROOT)
     rows = enc.cost_target({"timing": res})
-    assert rows[0][0].endswith("(the baseline's ideal update)")
+    assert [r[0].rsplit("(", 1)[1] for r in rows] == [
+        "the baseline's update on the same encoder stream through its MasterEstimator)",
+        "the baseline's update on the ideal master)"]
+    assert [r[1] for r in rows] == [f"{res['ratio_baseline_encoder']:.2f}",
+                                    f"{res['ratio_baseline']:.2f}"]
     with pytest.raises(SystemExit, match="not a cantrack checkout"):
         enc.timing(bench.timing_cases, 1, 1, baseline=tmp_path, rounds=1)
