@@ -276,13 +276,19 @@ class Location:
         return self.distance_to(other) <= pos_tol_mm and self.angle_to(other) <= ang_tol_deg
 
 
+#: the slots of Location, set directly (a frozen dataclass refuses setattr)
+_set_pos = Location.__dict__["pos"].__set__
+_set_ori = Location.__dict__["ori"].__set__
+_new = object.__new__
+
+
 def _loc(pos: Vec3, ori: Quat) -> Location:
     """A Location from values known to be valid (normalises ori without the checks' cost)."""
-    loc = object.__new__(Location)
-    n = q_norm(ori)
-    object.__setattr__(loc, "pos", pos)
-    object.__setattr__(loc, "ori", ori if n == 1.0 else (ori[0] / n, ori[1] / n, ori[2] / n,
-                                                         ori[3] / n))
+    loc = _new(Location)
+    w, x, y, z = ori
+    n = math.sqrt(w * w + x * x + y * y + z * z)  # (q_norm written out)
+    _set_pos(loc, pos)
+    _set_ori(loc, ori if n == 1.0 else (w / n, x / n, y / n, z / n))
     return loc
 
 

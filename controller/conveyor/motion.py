@@ -205,6 +205,8 @@ class VirtualRobot:
     def due(self) -> list[Motion]:
         """Motions that start at the next step: superposed ones, and the head of the queue
         when nothing runs."""
+        if not self.queue:
+            return []  # (nothing waits: the usual sample)
         out = []
         idle = not self.running()
         for m in self.queue:
@@ -265,6 +267,11 @@ class VirtualRobot:
         return s / length, sd / length, sdd / length
 
     def _evaluate(self) -> None:
+        if not self.factors:  # at rest on the base: the loop below without a factor
+            base = self.base
+            self._loc = Location.trusted(base.pos, base.ori)
+            self._vel = self._acc = (0.0, 0.0, 0.0)
+            return
         pos = list(self.base.pos)
         ori = self.base.ori
         vel = [0.0, 0.0, 0.0]

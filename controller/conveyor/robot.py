@@ -204,6 +204,7 @@ class FrameLink:
         self.axis: Vec3 = self.geo.local_axis
         self._axis_free = not ((isinstance(self.geo, RotaryGeometry) and self.geo.rotates)
                                or isinstance(self.geo, GroupGeometry))
+        self._rotary = isinstance(self.geo, RotaryGeometry)
         self.tracker = ConveyorTracker(self.params, MotionState())
         self.offset_pos: Vec3 = _ZERO3
         self.offset_ang = 0.0
@@ -466,7 +467,7 @@ class FrameLink:
         tr = self.tracker
         if self.item is not None and self.point is not None and self.ref is not None:
             self.target = self._make_target()
-            if isinstance(self.geo, RotaryGeometry):
+            if self._rotary:
                 arc = self.geo.arc
                 center = vec3(c - r + o for c, r, o in zip(arc.center, self.ref.pos,
                                                           self.offset_pos))
@@ -488,9 +489,11 @@ class FrameLink:
         if rec is not None and tr.state in (TrackState.SYNCING, TrackState.SYNCED) and \
                 not self.leaving:
             sp, tg = out.setpoint, self.target
+            (t0, t1, t2), (s0, s1, s2) = tg.pos, sp.pos
+            (u0, u1, u2), (w0, w1, w2) = tg.vel, sp.vel
             rec.observe(self.track_state == TrackState.SYNCED and not synced_now,
-                        tuple(a - b for a, b in zip(tg.pos, sp.pos)), tg.ang - sp.ang,
-                        tuple(a - b for a, b in zip(tg.vel, sp.vel)))
+                        (t0 - s0, t1 - s1, t2 - s2), tg.ang - sp.ang,
+                        (u0 - w0, u1 - w1, u2 - w2))
         if synced_now and rec is not None:
             rec.synced_sample = k
             rec.status = ItemStatus.CAUGHT
@@ -764,7 +767,10 @@ class RobotGroup:
         self._drop_done()
 
     def _drop_done(self) -> None:
-        self.links = [lk for lk in self.links if not lk.done]
+        for lk in self.links:
+            if lk.done:
+                self.links = [lk for lk in self.links if not lk.done]
+                break
         if not self.links:
             self._slave = 0
 
@@ -1047,16 +1053,16 @@ class RobotGroup:
             ev.append(Event(k, EventKind.MOTION_STARTED, message=m.name or f"motion {m.id}"))
         v.step()
         loc = v.location
-        vel = list(v.velocity)
+        v0, v1, v2 = v.velocity
         for link in self.links:
             if link.done:
                 continue
             loc = loc.oplus(link.contribution())
-            cv = link.contribution_velocity()
-            vel = [a + b for a, b in zip(vel, cv)]
+            c0, c1, c2 = link.contribution_velocity()
+            v0, v1, v2 = v0 + c0, v1 + c1, v2 + c2
         self._drop_done()
         self.setpoint = loc
-        self.velocity = vec3(vel)
+        self.velocity = (v0, v1, v2)
         a = self._active()
         out = RobotOutput(k, loc, self.velocity, v.location, self.imfs, self._slave,
                           a.frame.name if a is not None else None,

@@ -105,6 +105,12 @@ class CountsConverter:
     def from_counts(self, counts: Sequence[int]) -> tuple[float, ...]:
         return tuple([z + s * c / k for (s, z, k), c in zip(self._k, counts)])
 
+    @property
+    def factors(self) -> tuple[tuple[int, float, float], ...]:
+        """Per axis (sign, zero [unit], counts per unit): ``from_counts`` is
+        ``zero + sign * counts / counts_per_unit``, ``to_counts`` its rounded inverse."""
+        return self._k
+
     def outside_limits(self, joints: Sequence[float]) -> list[tuple[str, float]]:
         return [(a.name, v) for a, v in zip(self.axes, joints) if not a.min <= v <= a.max]
 

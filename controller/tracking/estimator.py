@@ -18,6 +18,7 @@ multiply-adds.  Pure: samples in, estimate out; no clock.
 from __future__ import annotations
 
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -52,6 +53,46 @@ def _weights(n: int, lead: float, sample_time_s: float, degree: int) -> tuple[tu
     return tuple(float(x) for x in wp), tuple(float(x) for x in wv), tuple(float(x) for x in wa)
 
 
+#: window lengths up to this get their sums written out (_fit_sums); longer ones (rare: the
+#: code grows with the square of the window) the loop (_fit_loop), with the same results
+FIT_WRITTEN_OUT = 64
+
+
+def _fit_loop(wp: tuple[float, ...], wv: tuple[float, ...], wa: tuple[float, ...]
+              ) -> Callable[..., tuple[float, float, float]]:
+    """``f(x_0, ..., x_n-1) -> (p, v, a)``: the weighted sums as a loop."""
+    def fit(*xs: float) -> tuple[float, float, float]:
+        p = v = a = 0.0
+        for x, kp, kv, ka in zip(xs, wp, wv, wa):
+            p += kp * x
+            v += kv * x
+            a += ka * x
+        return p, v, a
+    return fit
+
+
+def _fit_sums(wp: tuple[float, ...], wv: tuple[float, ...], wa: tuple[float, ...]
+              ) -> Callable[..., tuple[float, float, float]]:
+    """``f(x_0, ..., x_n-1) -> (p, v, a)``, the weighted sums of one window length written
+    out: ``p = 0.0 + wp[0]*x_0 + wp[1]*x_1 + ...`` evaluated left to right, the operations
+    and their order of ``p = 0.0; for i: p += wp[i] * x_i`` (bit-identical), without the
+    loop's per-sample work (a third of the cost).  Generated once per window length from
+    the weights' exact reprs, as ``dataclasses`` generates ``__init__``."""
+    n = len(wp)
+    xs = [f"x{i}" for i in range(n)]
+
+    def total(w: tuple[float, ...]) -> str:
+        return "0.0" + "".join(f" + ({w[i]!r}) * {x}" for i, x in enumerate(xs))
+
+    src = (f"def fit({', '.join(xs)}):\n"
+           f"    return ({total(wp)},\n            {total(wv)},\n            {total(wa)})\n")
+    ns: dict[str, object] = {}
+    exec(src, ns)  # noqa: S102 -- generated from float reprs only
+    fit = ns["fit"]
+    assert callable(fit)
+    return fit
+
+
 class MasterEstimator:
     """Least-squares quadratic fit over a sliding window, predicted ``lead_samples`` ahead.
 
@@ -74,6 +115,8 @@ class MasterEstimator:
         full = max(3, self.window // 2)
         self._w = {n: _weights(n, self.lead, self.sample_time_s, degree if n >= full else 1)
                    for n in range(1, self.window + 1)}
+        self._fit = {n: _fit_sums(*w) if n <= FIT_WRITTEN_OUT else _fit_loop(*w)
+                     for n, w in self._w.items()}
         self._missed = 0
 
     def reset(self) -> None:
@@ -98,12 +141,7 @@ class MasterEstimator:
         n = len(self._x)
         if n == 0:
             raise ValueError("no master samples yet")
-        wp, wv, wa = self._w[n]
-        p = v = a = 0.0
-        for x, kp, kv, ka in zip(self._x, wp, wv, wa):
-            p += kp * x
-            v += kv * x
-            a += ka * x
+        p, v, a = self._fit[n](*self._x)
         if extra_samples:
             dt = extra_samples * self.sample_time_s
             p += v * dt + 0.5 * a * dt * dt

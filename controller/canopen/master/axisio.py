@@ -38,6 +38,8 @@ class DriveInput(NamedTuple):
 
 #: the 402 state of the statusword's bits 0-3, 5, 6 (``cia402.decode_statusword`` inlined)
 _STATE_OF = cia402.STATE_OF_BITS.__getitem__
+#: a DriveInput from its 5 values (the named tuple's own __new__ without its extra call)
+_new_input = tuple.__new__
 
 
 def _configured(cfg: ControllerConfig, node: str, index: int, sub: int) -> float:
@@ -112,7 +114,8 @@ class AxisIO:
             return
         v = self._unpack(data)
         sw = v[self._sw_pos]
-        self.input = DriveInput(sw, v[self._act_pos], t_ns, self.cycle, _STATE_OF(sw & 0x6F))
+        self.input = _new_input(DriveInput, (sw, v[self._act_pos], t_ns, self.cycle,
+                                             _STATE_OF(sw & 0x6F)))
 
     def _on_inputs(self, can_id: int, data: bytes, t_ns: int) -> None:
         self.inputs = int(self._di.unpack(data)[self._di_pos])

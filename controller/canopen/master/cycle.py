@@ -227,6 +227,9 @@ class Controller:
         #: each master's event of this cycle (a cell's context gives them all)
         self._master_events = [MasterEvent.NONE] * len(self.masters)
         self._cell = cell is not None
+        #: the axes in the order their TPDOs come last first (the devices answer a SYNC in
+        #: node order): the input check after each frame stops at the first missing one
+        self._axes_last_first = self.axes[::-1]
         self.sync = SyncProducer(transport, 0x80, cfg.master.sync_overflow)
         self.heartbeats = HeartbeatMonitor(transport, self.hygiene)
         self.emcy = EmcyMonitor(transport, self.hygiene, cfg)
@@ -241,6 +244,9 @@ class Controller:
         self._limits = [(a, a.scale.min, a.scale.max, a.quick_stop_decel) for a in self.axes]
         self._xyz = [(j, "xyz".find(name)) for j, name in enumerate(self.kinematics.axes)
                      if "xyz".find(name) >= 0] if cell is None else []
+        #: per translation axis (AxisIO, x/y/z index i, the counts conversion's sign, zero and
+        #: counts per unit: CountsConverter.from_counts of that axis)
+        self._xyz_counts = [(self.axes[j], i, *self.counts.factors[j]) for j, i in self._xyz]
         self._sdo_statusword: dict[int, int] = {}  # node-ID -> 6041h read by SDO (stopping)
         for a in self.axes:
             transport.subscribe(0x580 + a.node_id, self._on_sdo_answer)
@@ -450,7 +456,7 @@ class Controller:
             s = m.snapshot
             if s is None or s[2] != k:
                 return False
-        for a in self.axes:
+        for a in self._axes_last_first:
             inp = a.input
             if inp is None or inp.cycle != k:
                 return False
@@ -579,11 +585,12 @@ class Controller:
 
     def _drive_views(self, k: int) -> tuple[DriveView, ...]:
         """The drives as this cycle's TPDOs showed them (the source's context)."""
-        return tuple([DriveView(a.axis, None, 0, None, False, a.inputs, a.probe)
+        # (DriveView's 7 fields given in order: the named tuple made without its __new__)
+        return tuple([_new_tuple(DriveView, (a.axis, None, 0, None, False, a.inputs, a.probe))
                       if (inp := a.input) is None else
-                      DriveView(a.axis, inp.state, inp.statusword,
-                                a.scale.from_counts(inp.actual), inp.cycle == k, a.inputs,
-                                a.probe) for a in self.axes])
+                      _new_tuple(DriveView, (a.axis, inp.state, inp.statusword,
+                                             a.scale.from_counts(inp.actual), inp.cycle == k,
+                                             a.inputs, a.probe)) for a in self.axes])
 
     def _sdo(self, i: int) -> SdoClient:
         """The SDO client of drive ``i`` (the sources' transfers)."""
@@ -989,8 +996,16 @@ class Controller:
         m_k = self._master_for.pop(k, None)  # the master predicted for this SYNC
         if m_k is not None and self.tracking and \
                 self.status.tracker_state is not TrackState.OFF:
-            err = self._translation_error(actual if actual is not None else self._actual(),
-                                          m_k)
+            if actual is not None:
+                err = self._translation_error(actual, m_k)
+            else:  # (_actual()'s conversion of the x, y, z axes only, then the same sum)
+                p = m_k.pos
+                t = 0.0
+                for a, i, sign, zero, k_ in self._xyz_counts:
+                    inp = a.input
+                    d = (zero + sign * (inp.actual if inp is not None else 0) / k_) - p[i]
+                    t += d * d
+                err = math.sqrt(t)
         self.last_tracking_error = err
         return err
 
@@ -1069,6 +1084,8 @@ class Controller:
             if self.on_cycle is not None:
                 self.on_cycle(self, rec)
 
+
+_new_tuple = tuple.__new__
 
 #: the master input's events (masterio) as the source's context says them
 _MASTER_EVENTS = {None: MasterEvent.NONE, "silent": MasterEvent.SILENT, "lost": MasterEvent.LOST,

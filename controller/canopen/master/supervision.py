@@ -21,6 +21,7 @@ frames (SocketCAN's CAN_ERR_* classes: controller error passive, bus-off).
 
 from __future__ import annotations
 
+import math
 import struct
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
@@ -80,11 +81,17 @@ class HeartbeatMonitor:
         self.hygiene = hygiene if hygiene is not None else FrameHygiene()
         self.watches: dict[int, _Watch] = {}
         self.expected_state = 5
+        #: :meth:`check` has nothing to find before this time [ns] (no time-out can have
+        #: passed) unless a heartbeat showed a state (``_news``); a heartbeat only moves a
+        #: time-out later, so an earlier value is merely a check too many
+        self._due: float = -math.inf
+        self._news = True
 
     def watch(self, node_id: int, label: str, timeout_ns: int) -> None:
         w = _Watch(label, node_id, timeout_ns)
         self.watches[node_id] = w
         self.transport.subscribe(0x700 + node_id, self._on_heartbeat)
+        self._due, self._news = -math.inf, True
 
     def start(self, now_ns: int) -> None:
         """Begin the time-out checks now (nodes that never sent count from here)."""
@@ -92,6 +99,7 @@ class HeartbeatMonitor:
             w.state = None  # boot-up and pre-operational heartbeats of the boot are expected
             if w.last_ns is None:
                 w.last_ns = now_ns
+        self._due, self._news = -math.inf, True
 
     def _on_heartbeat(self, can_id: int, data: bytes, t_ns: int) -> None:
         w = self.watches.get(can_id - 0x700)
@@ -101,11 +109,18 @@ class HeartbeatMonitor:
         w.last_ns = t_ns
         w.state = data[0] & 0x7F
         w.lost = False
+        if w.state != self.expected_state:
+            self._news = True
+        if w.timeout_ns > 0 and t_ns + w.timeout_ns < self._due:
+            self._due = t_ns + w.timeout_ns  # (a lost node back: its time-out counts again)
 
     def check(self, now_ns: int) -> list[tuple[str, str, str]]:
         """New findings as (label, kind, detail): kind heartbeat_lost / node_reset (a
         boot-up: the node reset itself) / nmt_state (stopped, pre-operational, ...)."""
+        if now_ns <= self._due and not self._news:
+            return []  # (nearly every cycle: no time-out due, no state shown)
         out = []
+        due = math.inf
         for w in self.watches.values():
             if w.timeout_ns <= 0 or w.last_ns is None:
                 continue
@@ -114,6 +129,8 @@ class HeartbeatMonitor:
                 out.append((w.label, "heartbeat_lost",
                             (f"no heartbeat for {(now_ns - w.last_ns) / 1e6:.0f} ms "
                              f"(time-out {w.timeout_ns / 1e6:.0f} ms)")))
+            if not w.lost:
+                due = min(due, w.last_ns + w.timeout_ns)
             if w.state is not None and w.state != self.expected_state:
                 name = NMT_NAMES.get(w.state, f"{w.state:02X}h")
                 if w.state == 0:
@@ -122,6 +139,7 @@ class HeartbeatMonitor:
                 else:
                     out.append((w.label, "nmt_state", f"heartbeat shows NMT state {name}"))
                 w.state = None  # report once per heartbeat
+        self._due, self._news = due, False
         return out
 
 

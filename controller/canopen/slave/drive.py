@@ -73,6 +73,8 @@ class SimDrive(SimNode):
         super().__init__(name, eds, node_id, bus, **kw)
         clock = self.clock
         self.params = params or DriveParams()
+        #: the probe input wired to the home switch (:meth:`_follow_probe` after each step)
+        self._probe_home = self.params.probe_input == "home"
         self.x = float(self.params.initial_counts)  # actual position [counts]
         self.v = 0.0  # actual velocity [counts/s]
         self.demand = self.x
@@ -369,7 +371,8 @@ class SimDrive(SimNode):
     def on_sync(self, now_ns: int) -> None:
         x0 = self.x - self._home_shift
         self._servo_step(self.dt_s)
-        self._follow_probe(x0)
+        if self._probe_home:
+            self._follow_probe(x0)
         self._last_step_ns = now_ns
         self._apply_controlword()
         if self.state is State.OPERATION_ENABLED and self.mode == cia402.MODE_CSP \

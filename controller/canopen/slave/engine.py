@@ -367,7 +367,9 @@ class SlaveEngine:
         if raw is None:
             value = odm.default_value(self.var(index, sub))
             return 0 if value is None else value
-        return self.decode(index, sub, raw)
+        c = self._codecs.get((index, sub))  # (decode() written out)
+        st, v = c if c is not None else self._codec(index, sub)
+        return st.unpack(raw)[0] if st is not None else v.decode_raw(raw)
 
     # -- SDO server side --------------------------------------------------------------------
     def _find(self, index: int, sub: int) -> ODVariable:
