@@ -271,6 +271,8 @@ class PickPlace:
     _T: float = 0.0
     _prev: MotionState | None = None
     _events: list[SourceEvent] = field(default_factory=list)
+    #: the robot group's IMFS after its update in this step
+    _robot_imfs: Imfs = Imfs.NOT_SYNCHRONIZED
 
     @property
     def imfs(self) -> int:
@@ -389,7 +391,8 @@ class PickPlace:
             self._master_lost()
         m = self._update(ctx)
         out = tracker.update(m)
-        return SourceOutput(out.setpoint, self.status(), target=tracker.target(m),
+        return SourceOutput(out.setpoint, self.status(self._robot_imfs),
+                            target=tracker.target(m),
                             events=tuple(self._events), done=self._done(ctx.cycle))
 
     def _update(self, ctx: CycleContext) -> MotionState:
@@ -457,6 +460,7 @@ class PickPlace:
         if tracker is not None and tracker.state is TrackState.OFF and master_ready:
             tracker.engage(Mode.ABSOLUTE)  # (de-synced by a silent encoder: follow again)
         out = r.update()
+        self._robot_imfs = out.imfs  # (the status of this step: nothing below changes it)
         imfs = int(out.imfs)
         if not self.imfs_log or self.imfs_log[-1] != imfs:
             self.imfs_log.append(imfs)
@@ -558,17 +562,19 @@ class PickPlace:
                         and item.item_type not in types:
                     self._finish_item(item, Outcome.IGNORED, f"type {item.item_type} not tracked")
 
-    def status(self) -> SourceStatus:
+    def status(self, imfs: Imfs | None = None) -> SourceStatus:
         """The robot group's tracking, the pass-through tracker's, the photo-eye's count, the
-        items missed and ignored."""
+        items missed and ignored.  ``imfs``: the robot group's IMFS when the caller has it
+        (its last update's, in :meth:`step`), else it is asked."""
         tr = self.tracker
         detected = self.eye.detected if self.eye is not None else None
         if self.robot is None or tr is None:
             return SourceStatus(items_detected=detected, items_missed=self.missed,
                                 triggers_dropped=self.triggers_dropped,
                                 items_ignored=self.ignored)
-        return SourceStatus(self.track_state, self.robot.imfs, tr.state, tr.imfs, tr.error,
-                            detected, self.missed, self.triggers_dropped, self.ignored)
+        return SourceStatus(self.track_state, self.robot.imfs if imfs is None else imfs,
+                            tr.state, tr.imfs, tr.error, detected, self.missed,
+                            self.triggers_dropped, self.ignored)
 
     def _master_lost(self) -> None:
         if self.current is not None and self.stage in (Step.APPROACH, Step.FOLLOW):

@@ -247,6 +247,9 @@ class Controller:
         #: per translation axis (AxisIO, x/y/z index i, the counts conversion's sign, zero and
         #: counts per unit: CountsConverter.from_counts of that axis)
         self._xyz_counts = [(self.axes[j], i, *self.counts.factors[j]) for j, i in self._xyz]
+        #: per axis (AxisIO, sign, zero, counts per unit of its own AxisScale)
+        self._axes_counts = [(a, a.scale.sign, a.scale.zero, a.scale.counts_per_unit)
+                             for a in self.axes]
         self._sdo_statusword: dict[int, int] = {}  # node-ID -> 6041h read by SDO (stopping)
         for a in self.axes:
             transport.subscribe(0x580 + a.node_id, self._on_sdo_answer)
@@ -585,12 +588,14 @@ class Controller:
 
     def _drive_views(self, k: int) -> tuple[DriveView, ...]:
         """The drives as this cycle's TPDOs showed them (the source's context)."""
-        # (DriveView's 7 fields given in order: the named tuple made without its __new__)
+        # (DriveView's 7 fields given in order: the named tuple made without its __new__;
+        #  the actual position: AxisScale.from_counts written out)
         return tuple([_new_tuple(DriveView, (a.axis, None, 0, None, False, a.inputs, a.probe))
                       if (inp := a.input) is None else
                       _new_tuple(DriveView, (a.axis, inp.state, inp.statusword,
-                                             a.scale.from_counts(inp.actual), inp.cycle == k,
-                                             a.inputs, a.probe)) for a in self.axes])
+                                             zero + sign * inp.actual / k_, inp.cycle == k,
+                                             a.inputs, a.probe))
+                      for a, sign, zero, k_ in self._axes_counts])
 
     def _sdo(self, i: int) -> SdoClient:
         """The SDO client of drive ``i`` (the sources' transfers)."""
