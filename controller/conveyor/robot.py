@@ -468,10 +468,12 @@ class FrameLink:
         if self.item is not None and self.point is not None and self.ref is not None:
             self.target = self._make_target()
             if self._rotary:
-                arc = self.geo.arc
+                geo = self.geo
+                assert isinstance(geo, RotaryGeometry)  # (what _rotary says)
+                arc = geo.arc
                 center = vec3(c - r + o for c, r, o in zip(arc.center, self.ref.pos,
                                                           self.offset_pos))
-                tr.set_arc(center, arc.axis, couple_angle=self.geo.rotates)
+                tr.set_arc(center, arc.axis, couple_angle=geo.rotates)
         was_synced = self.track_state == TrackState.SYNCED
         out = tr.update(self.target)
         sw = self.swing
@@ -1036,7 +1038,7 @@ class RobotGroup:
                 except CantrackError as exc:
                     ev.append(Event(k, EventKind.COMMAND_ERROR,
                                     getattr(m.master_frame, "name", "") or "", message=str(exc)))
-        for link in list(self.links):
+        for link in list(self.links) if self.links else ():
             e = link.step(k, ev)
             if e and not error:
                 error = e
@@ -1063,10 +1065,11 @@ class RobotGroup:
         self._drop_done()
         self.setpoint = loc
         self.velocity = (v0, v1, v2)
-        a = self._active()
+        links = self.links
+        a = self._active() if links else None
         out = RobotOutput(k, loc, self.velocity, v.location, self.imfs, self._slave,
                           a.frame.name if a is not None else None,
-                          tuple([(lk.frame.name, lk.state) for lk in self.links]), tuple(ev),
-                          error)
+                          tuple([(lk.frame.name, lk.state) for lk in links]) if links else (),
+                          tuple(ev), error)
         self.last_output = out
         return out

@@ -389,14 +389,13 @@ class PickPlace:
         if ctx.master.event in (MasterEvent.SILENT, MasterEvent.LOST):
             desync_on_master_loss(tracker, ctx.master.event)
             self._master_lost()
-        m = self._update(ctx)
+        m = self._update(ctx, r, f)
         out = tracker.update(m)
         return SourceOutput(out.setpoint, self.status(self._robot_imfs),
                             target=tracker.target(m),
                             events=tuple(self._events), done=self._done(ctx.cycle))
 
-    def _update(self, ctx: CycleContext) -> MotionState:
-        r, f = self._cell()
+    def _update(self, ctx: CycleContext, r: RobotGroup, f: MovingFrame) -> MotionState:
         T = self._T
         cycle = ctx.cycle
         belt = ctx.master.estimate
@@ -490,7 +489,7 @@ class PickPlace:
             ang = -ang
         prev = self._prev
         assert prev is not None  # (set by start)
-        vel = vec3(out.velocity)
+        vel = out.velocity  # (a 3-tuple already: the robot group's)
         v0, v1, v2 = vel
         u0, u1, u2 = prev.vel
         acc = ((v0 - u0) / T, (v1 - u1) / T, (v2 - u2) / T)

@@ -92,6 +92,9 @@ if TYPE_CHECKING:
 
 #: the 402 states of a drive fault
 _FAULT_STATES = frozenset((State.FAULT, State.FAULT_REACTION_ACTIVE))
+#: (the running drive's test in the supervision, module constants)
+_ENABLED = State.OPERATION_ENABLED
+_SW_FOLLOWING_ERROR = cia402.SW_FOLLOWING_ERROR
 
 
 class EnableError(CanError):
@@ -948,7 +951,7 @@ class Controller:
             silent[i] = 0
             sw = inp.statusword
             st = inp.state
-            if st is State.OPERATION_ENABLED and not sw & cia402.SW_FOLLOWING_ERROR:
+            if st is _ENABLED and not sw & _SW_FOLLOWING_ERROR:
                 continue  # the running drive: nothing to report
             if st in _FAULT_STATES:
                 if self.phase is Phase.RUNNING or (a.hold is not None):

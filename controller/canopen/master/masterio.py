@@ -190,8 +190,9 @@ class MasterInput:
         assert est is not None  # one of the two
         t_nom = self._t_nominal_s
         self._t_nominal_s = t_nom + self.period_s
-        if self.fresh(cycle):
-            raw = self.snapshot[0]
+        snap = self.snapshot
+        if snap is not None and snap[2] == cycle:  # (fresh() written out)
+            raw = snap[0]
             if self.lost:
                 self.lost = False
                 est.reset()

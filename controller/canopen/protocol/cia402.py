@@ -57,6 +57,11 @@ MODE_CSP = 8
 
 
 class State(Enum):
+    # (Enum hashes a member by its name in Python code; the members are singletons compared
+    #  by identity, so the identity hash gives the same dicts and sets, several times faster:
+    #  a state is a key in the drive's tables every cycle)
+    __hash__ = object.__hash__
+
     NOT_READY_TO_SWITCH_ON = "not ready to switch on"
     SWITCH_ON_DISABLED = "switch on disabled"
     READY_TO_SWITCH_ON = "ready to switch on"

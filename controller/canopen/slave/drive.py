@@ -232,7 +232,8 @@ class SimDrive(SimNode):
     def _servo_step(self, dt: float) -> None:
         p = self.params
         st = self.state
-        if st is State.OPERATION_ENABLED and self.mode == cia402.MODE_CSP:
+        mode = self.mode if st is State.OPERATION_ENABLED else None
+        if mode == cia402.MODE_CSP:
             d = self._limited_demand()
             a = math.exp(-dt / p.tau_s) if p.tau_s > 0 else 0.0
             step = (d - self.x) * (1.0 - a)
@@ -241,7 +242,7 @@ class SimDrive(SimNode):
             self.x += step
             self.v = step / dt
             self._check_following_error(dt)
-        elif st is State.OPERATION_ENABLED and self.mode == cia402.MODE_HM:
+        elif mode == cia402.MODE_HM:
             self._homing_step(dt)
         elif st in (State.QUICK_STOP_ACTIVE, State.FAULT_REACTION_ACTIVE):
             decel = float(self.param(0x6085))
@@ -344,11 +345,12 @@ class SimDrive(SimNode):
                           State.OPERATION_ENABLED, State.QUICK_STOP_ACTIVE,
                           State.FAULT_REACTION_ACTIVE):
             sw |= cia402.SW_VOLTAGE_ENABLED
-        if self.state is State.OPERATION_ENABLED and self.mode == cia402.MODE_CSP:
+        mode = self.mode if self.state is State.OPERATION_ENABLED else None
+        if mode == cia402.MODE_CSP:
             sw |= cia402.SW_FOLLOWS_TARGET
             if self._following_error:
                 sw |= cia402.SW_FOLLOWING_ERROR
-        if self.state is State.OPERATION_ENABLED and self.mode == cia402.MODE_HM:
+        if mode == cia402.MODE_HM:
             if self.homing_status == "done":
                 sw |= cia402.SW_TARGET_REACHED | HM_ATTAINED
             elif self.homing_status == "error":

@@ -343,7 +343,10 @@ class SlaveEngine:
         c = self._packers.get(key)  # (encode() with its lookups made once per object)
         pack, whole = c if c is not None else self._packer(key)
         raw = pack(int(value)) if whole else pack(value)
-        d = self.node.data_store.setdefault(index, {})
+        ds = self.node.data_store
+        d = ds.get(index)  # (setdefault without its empty dict made for every call)
+        if d is None:
+            d = ds[index] = {}
         if d.get(sub) != raw:
             d[sub] = raw
             self._changed.add(key)
@@ -705,7 +708,9 @@ class SlaveEngine:
         accepted = self.on_rpdo_data(pdo.number, values)
         store = self.node.data_store
         for index, sub, raw in accepted:
-            d = store.setdefault(index, {})
+            d = store.get(index)
+            if d is None:
+                d = store[index] = {}
             if d.get(sub) != raw:
                 d[sub] = raw
                 self._changed.add((index, sub))
