@@ -36,6 +36,10 @@ from pathlib import Path
 
 import numpy as np
 
+ROOT = Path(__file__).resolve().parents[1]
+if str(ROOT) not in sys.path:  # run as a script from a checkout, installed or not
+    sys.path.insert(0, str(ROOT))
+
 from controller.fmu import build_conveyor_fmu, build_tracker_fmu
 from controller.fmu.engine import VARIABLES, tracker_params
 from controller.fmu.runner import (MASTER_INPUTS, OUTPUT_INTS, OUTPUT_REALS, FmuTracker,
