@@ -211,11 +211,10 @@ def test_reset_reattaches_the_value_list(fmu_path):
     assert {row[1] for row in first.ints} == {0, 1, 3}
 
 
-def test_fmi2_step_exception_outside_the_engine_guard_is_an_error(fmu2_path, monkeypatch,
-                                                                     capfd):
+def test_fmi2_step_exception_outside_the_engine_guard_is_an_error(fmu2_path, monkeypatch):
     """FMI 2: the front calls the engine's step directly; an exception that escapes it
     (here from the refusal after terminate) is Error with a message, its traceback on
-    stderr, and the host goes on."""
+    stderr, the host goes on, and the front refuses later steps until a reset."""
     from controller.fmu.runner import bundled_module
 
     with FmuTracker(fmu2_path, start_values={"planner": 0}, logging_on=False) as fmu:
@@ -227,12 +226,171 @@ def test_fmi2_step_exception_outside_the_engine_guard_is_an_error(fmu2_path, mon
             raise RuntimeError("refusal broke")
 
         monkeypatch.setattr(engine, "_refuse_dead", broken)
+        unraisable = []  # the front hands the exception to sys.unraisablehook (stderr)
+        monkeypatch.setattr(sys, "unraisablehook", unraisable.append)
         with pytest.raises(FMICallException):
             fmu.slave.doStep(fmu.time, T)
         assert [m[0] for m in fmu.messages] == [3]
         assert "the engine raised an exception" in fmu.messages[0][2]
+        assert [(u.exc_type, str(u.exc_value)) for u in unraisable] == [
+            (RuntimeError, "refusal broke")]
         monkeypatch.undo()
-        with pytest.raises(FMICallException):  # the usual refusal again
+        with pytest.raises(FMICallException):  # refused by the front now
             fmu.slave.doStep(fmu.time, T)
-        assert "instance is terminated" in fmu.messages[-1][2]
-    assert "RuntimeError: refusal broke" in capfd.readouterr().err
+        assert "refused: an earlier step raised an exception" in fmu.messages[-1][2]
+        fmu.slave.reset()
+        fmu.slave.setupExperiment(startTime=0.0)
+        fmu.slave.enterInitializationMode()
+        fmu.set({"planner": 0})
+        fmu.slave.exitInitializationMode()
+        fmu.time = 0.0
+        fmu.run(conveyor_scenario(T), 3, T)
+
+
+def _softmc_params():
+    """The TrackerParams of the FMU's default parameters with planner 0 (softmc)."""
+    from controller.fmu.engine import VARIABLES, tracker_params
+
+    return tracker_params({**{row[0]: row[4] for row in VARIABLES if row[2] == "parameter"},
+                           "planner": 0})
+
+
+# run in a subprocess: a crash of the host (or an exit) is then seen, not suffered
+_PROBE = r"""
+import gc, json, sys
+from controller.fmu.runner import FmuTracker, bundled_module, conveyor_scenario
+
+path, mode = sys.argv[1], sys.argv[2]
+T = 0.001
+out = {}
+
+
+def engine_of(fmu):
+    cls = bundled_module(path, "fmu.engine").TrackerEngine
+    gc.collect()  # an engine of an earlier Python instance (reset) may still be garbage
+    [engine] = [o for o in gc.get_objects() if isinstance(o, cls)]
+    return engine
+
+
+def init(fmu):
+    if fmu.fmi3:
+        fmu.slave.enterInitializationMode(startTime=0.0)
+    else:
+        fmu.slave.setupExperiment(startTime=0.0)
+        fmu.slave.enterInitializationMode()
+    fmu.set({"planner": 0})
+    fmu.slave.exitInitializationMode()
+    fmu.time = 0.0
+
+
+def attached(fmu):
+    # with the front attached a set input waits in the front until the next step
+    engine, vr = engine_of(fmu), fmu.vr["master_x"]
+    before = engine.v[vr]
+    fmu.set({"master_x": before + 12.5})
+    held = engine.v[vr] == before
+    fmu.set({"master_x": before})
+    return held
+
+
+with FmuTracker(path, start_values={"planner": 0}, logging_on=False) as fmu:
+    scenario = conveyor_scenario(T, engage_s=0.02, release_s=0.15)
+    if mode == "attach":
+        out["warnings"] = [m[2] for m in fmu.messages if m[0] == 1]
+        out["attached"] = attached(fmu)
+        out["reals"] = fmu.run(scenario, 200, T).reals
+        fmu.slave.reset()
+        init(fmu)
+        out["attached_after_reset"] = attached(fmu)
+        out["again"] = fmu.run(scenario, 200, T).reals
+    else:
+        fmu.run(scenario, 3, T)
+        engine = type(engine_of(fmu))
+        step = engine._step
+
+        def broken(self, *args):
+            raise (SystemExit(7) if mode == "exit" else KeyboardInterrupt())
+
+        engine._step = broken
+        statuses = []
+        for _ in range(2):
+            try:
+                fmu.slave.doStep(fmu.time, T)
+                statuses.append("ok")
+            except Exception as exc:
+                statuses.append(type(exc).__name__ + ": " + str(exc))
+        engine._step = step
+        out["statuses"] = statuses
+        out["messages"] = [[m[0], m[2]] for m in fmu.messages]
+        try:
+            fmu.slave.reset()
+        except Exception as exc:  # FMI 3: the wrapper made the step Fatal
+            out["reset"] = str(exc)
+            fmu.slave = None  # after Fatal only free (the front does not call the wrapper's)
+        else:
+            init(fmu)
+            out["after_reset"] = fmu.run(scenario, 200, T).reals
+print("RESULT " + json.dumps(out))
+"""
+
+
+def _probe(fmu, mode, tmp_path, env=None):
+    import json
+
+    res = subprocess.run([sys.executable, "-c", _PROBE, str(fmu), mode], capture_output=True,
+                         text=True, timeout=300, env=env)
+    lines = [ln for ln in res.stdout.splitlines() if ln.startswith("RESULT ")]
+    assert res.returncode == 0 and lines, (res.returncode, res.stdout[-2000:],
+                                          res.stderr[-4000:])
+    return json.loads(lines[-1][len("RESULT "):]), res.stderr
+
+
+def test_front_attaches_when_ruckig_is_missing(fmu_path, tmp_path):
+    """Without ruckig the slave warns at instantiation, and that warning reaches the front
+    during its own get of the engine's references: the front still attaches (set inputs wait
+    in it until the step, also after a reset), and the outputs are the fallback planner's,
+    bit for bit."""
+    import os
+
+    from controller.fmu.runner import core_run
+
+    fake = tmp_path / "no-ruckig" / "ruckig"
+    fake.mkdir(parents=True)
+    (fake / "__init__.py").write_text("raise ImportError('ruckig is not installed here')\n")
+    env = {**os.environ,
+           "PYTHONPATH": os.pathsep.join([str(fake.parent), os.environ.get("PYTHONPATH", "")])}
+    got, _ = _probe(fmu_path, "attach", tmp_path, env)
+    assert any("ruckig cannot be imported" in w for w in got["warnings"]), got["warnings"]
+    assert got["attached"] and got["attached_after_reset"]
+    scenario = conveyor_scenario(T, engage_s=0.02, release_s=0.15)
+    ref = core_run(_softmc_params(), scenario, 200).reals
+    assert got["reals"] == ref and got["again"] == ref
+
+
+@pytest.mark.parametrize("mode", ["exit", "interrupt"])
+def test_step_base_exception_is_an_error_and_later_steps_are_refused(fmu_path, mode,
+                                                                     tmp_path):
+    """A SystemExit or KeyboardInterrupt out of the engine's step: the host goes on.  FMI 2
+    (the front calls the engine's step): the step is Error, the next one is refused (the
+    tracker may be half updated), and after a reset the instance steps again.  FMI 3 (the
+    wrapper calls the slave's do_step): pythonfmu3 makes it Fatal, after which the front
+    refuses every call but free."""
+    from controller.fmu.runner import core_run
+
+    got, err = _probe(fmu_path, mode, tmp_path)
+    name = "SystemExit" if mode == "exit" else "KeyboardInterrupt"
+    first, second = got["statuses"]
+    assert "failed with status 3 (error)" in second, got
+    if "fmi3" in fmu_path.name or fmu_path.name.endswith("3.fmu"):
+        assert "failed with status 4 (fatal)" in first, got
+        assert [m[0] for m in got["messages"]] == [4] and name in got["messages"][0][1]
+        assert "fmi3Reset failed with status 3" in got["reset"]
+        return
+    assert "fmi2DoStep failed with status 3 (error)" in first, got
+    texts = [t for s, t in got["messages"] if s >= 3]
+    assert len(texts) == 2, got["messages"]
+    assert "the engine raised an exception" in texts[0]
+    assert "refused: an earlier step raised an exception" in texts[1]
+    assert name in err
+    scenario = conveyor_scenario(T, engage_s=0.02, release_s=0.15)
+    assert got["after_reset"] == core_run(_softmc_params(), scenario, 200).reals

@@ -134,6 +134,8 @@ typedef struct Instance {
     /* the shared variables (see 6. above) */
     int io_on;           /* after a successful exitInitializationMode */
     int terminated;      /* after fmiXTerminate: setters refused (until reset) */
+    int step_failed;     /* FMI 2: an exception escaped the engine's step: steps refused
+                            (until reset or SetFMUstate), the tracker may be half updated */
     int n_dirty;         /* inputs set since Python last got them */
     int out_valid;       /* out_value holds Python's current outputs */
     char in_dirty[N_IN + 1];
@@ -367,7 +369,7 @@ static struct {
     void (*DecRef)(PyObject *);
     PyObject *(*Err_Occurred)(void);
     void (*Err_Clear)(void);
-    void (*Err_Print)(void);
+    void (*Err_WriteUnraisable)(PyObject *);
     PyObject *(*Vectorcall)(PyObject *, PyObject *const *, size_t, PyObject *);
     long (*Long_AsLong)(PyObject *);
     int (*Callable_Check)(PyObject *);
@@ -391,7 +393,7 @@ static void resolve_python_api(void) {
     PY_API(DecRef, "Py_DecRef")
     PY_API(Err_Occurred, "PyErr_Occurred")
     PY_API(Err_Clear, "PyErr_Clear")
-    PY_API(Err_Print, "PyErr_Print")
+    PY_API(Err_WriteUnraisable, "PyErr_WriteUnraisable")
     PY_API(Vectorcall, "PyObject_Vectorcall")
     PY_API(Long_AsLong, "PyLong_AsLong")
     PY_API(Callable_Check, "PyCallable_Check")
@@ -480,7 +482,10 @@ static void attach(Instance *inst) {
     double address[3] = {0.0, 0.0, 0.0};
     size_t n = FMI_VERSION == 2 ? 3 : 1;
     inst->worst = 0;
-    if (wrapper_get_doubles(inst, vrs, n, address) != 0 || inst->worst || address[0] <= 0.0)
+    /* a warning is no reason to go without the list: the slave's instantiation warning
+       (e.g. ruckig cannot be imported) is delivered during this get */
+    if (wrapper_get_doubles(inst, vrs, n, address) > STATUS_WARNING ||
+        inst->worst > STATUS_WARNING || address[0] <= 0.0)
         return;
     PyObject *list = (PyObject *)(uintptr_t)address[0];
     PyObject *step = n == 3 ? (PyObject *)(uintptr_t)address[1] : NULL;
@@ -762,7 +767,9 @@ EXPORT int fmi2SetFMUstate(void *c, void *state) {
     int flushed = flush(inst);
     if (flushed > STATUS_WARNING) return flushed;
     inst->worst = 0;
-    return resync(inst, status_of(inst, WRAPPED(State2, fmi2SetFMUstate)(c, state)));
+    int status = status_of(inst, WRAPPED(State2, fmi2SetFMUstate)(c, state));
+    if (status <= STATUS_WARNING) inst->step_failed = 0; /* the engine's whole state restored */
+    return resync(inst, status);
 }
 
 /* The engine's do_step called directly (GIL held): it returns the FMI status (OK, Discard,
@@ -770,7 +777,12 @@ EXPORT int fmi2SetFMUstate(void *c, void *state) {
    does; the wrapper's path around it (a method looked up by name, its arguments built from
    a format, its log queue read back) costs more than the call itself.  Messages the step
    logged are in the wrapper's queue: a get of no values lets the wrapper hand them to the
-   front's logger (and so to the call's status) as after any of its calls. */
+   front's logger (and so to the call's status) as after any of its calls.
+   An exception that escapes the engine (any BaseException: SystemExit, KeyboardInterrupt
+   too, which the engine's own guard does not catch) goes to sys.unraisablehook (its
+   traceback on stderr; PyErr_Print would end the host on SystemExit), the step is Error
+   and later steps are refused until reset or SetFMUstate: the engine did not mark itself
+   failed and its tracker may be half updated. */
 static int direct_step2(Instance *inst, double t, double h) {
     PyObject *args[2] = {py.Float_FromDouble(t), py.Float_FromDouble(h)};
     PyObject *result = args[0] && args[1] ? py.Vectorcall(inst->step_fn, args, 2, NULL) : NULL;
@@ -782,8 +794,10 @@ static int direct_step2(Instance *inst, double t, double h) {
     if (code >= 0 && code <= STATUS_ERROR) {
         status = (int)code;
     } else {
-        if (py.Err_Occurred()) py.Err_Print();
-        log_error(inst, MODEL ": doStep: the engine raised an exception (printed on stderr)");
+        if (py.Err_Occurred()) py.Err_WriteUnraisable(inst->step_fn);
+        log_error(inst, MODEL ": doStep: the engine raised an exception (printed on stderr); "
+                        "later steps are refused until reset or a saved FMU state is set");
+        inst->step_failed = 1;
         status = STATUS_ERROR;
     }
     if (py.List_Size(inst->log_queue) > 0) {
@@ -797,6 +811,14 @@ static int direct_step2(Instance *inst, double t, double h) {
 EXPORT int fmi2DoStep(void *c, double t, double h, int noSetPrior) {
     Instance *inst = usable(c);
     if (!inst) return STATUS_ERROR;
+    if (inst->step_failed) {
+        char text[320];
+        snprintf(text, sizeof text, "%s: fmi2DoStep at t=%.17g s refused: an earlier step "
+                 "raised an exception out of the engine (printed on stderr), its state may be "
+                 "half updated (reset the instance or set a saved FMU state)", inst->name, t);
+        log_error(inst, text);
+        return STATUS_ERROR;
+    }
     if (inst->step_fn && inst->io_on) {
         int gil = py.GILState_Ensure();
         int pushed = push_inputs(inst);
@@ -841,6 +863,7 @@ EXPORT int fmi2Reset(void *c) {
     memset(inst->in_dirty, 0, sizeof inst->in_dirty);
     inst->worst = 0;
     int status = status_of(inst, WRAPPED(Call2, fmi2Reset)(c));
+    if (status <= STATUS_WARNING) inst->step_failed = 0;
     if (status <= STATUS_WARNING) attach(inst); /* the wrapper made a new Python instance */
     return status;
 }
