@@ -20,12 +20,12 @@ simulator steps a cell scenario (:func:`controller.simulate.cell.run_cell`):
   kinematics (:meth:`~controller.canopen.config.cell.CellRobotConfig.machine`; the tool angle
   c [deg] the twist about z, unwrapped) gives its joints [mm | deg], robot after robot in the
   order of ``.tracking.cell.robots`` (= ``.tracking.axes``); the joint velocities [mm/s |
-  deg/s] are backward differences over the time since the last SYNC (one period; after an
-  overrun the cycle's time base slipped by whole periods, the belt estimate moved on by them
-  and so did a synchronised robot: the difference over those periods too, not over one),
-  so the cycle checks every target and its quick-stop end against the axis limits
-  (:class:`AxisSetpoints` ``velocities``): a violation quick-stops every drive of every
-  robot.
+  deg/s] are backward differences over one period, so the cycle checks every target and
+  its quick-stop end against the axis limits (:class:`AxisSetpoints` ``velocities``): a
+  violation quick-stops every drive of every robot.  One period also after an overrun: a
+  CSP drive interpolates between consecutive SYNC targets and the slipped periods sent no
+  SYNC, so a synchronised robot's catch-up with its belt is driven in one period (a 108 ms
+  stall at 10 ms: 20 mm, ~2000 mm/s): the limit quick stop is the safe reaction.
 
 Every robot starts where its drives were enabled: when that pose is within half a count of
 each axis of the robot's ``start`` the configured start is used (so the bus and the file start
@@ -132,8 +132,6 @@ class CellSource:
         self.run: CellRun | None = None
         self.start_cycle = 0
         self.start_t_s = 0.0
-        self._last_t_ns = 0  # the last SYNC's deadline [ns] (the controller clock)
-        self._period_ns = 1
         self.T = 0.0
         self._end_n: int | None = None
         self._held: dict[str, list[tuple[int, HeldSource]]] = {}
@@ -175,8 +173,6 @@ class CellSource:
         self._sent = deque(maxlen=1 + tc.drive_delay_cycles)
         self.start_cycle = start.cycle
         self.start_t_s = start.t_s
-        self._last_t_ns = start.t_ns
-        self._period_ns = round(T * 1e9)
         if self.duration_s is not None:
             self._end_n = max(1, round(self.duration_s / T))
         params = replace(tc.tracker, sample_time_s=T)
@@ -304,15 +300,11 @@ class CellSource:
         if self.keep_inputs:
             self.inputs.append(held)
         outs, extra = run.step(latch, usable)
-        # periods since the last SYNC: 1, or 1 + those an overrun slipped (the cycle's
-        # deadline in ns counts them; t_s and the cell's sample do not).  Over one period a
-        # 108 ms stall at 10 ms made a synchronised robot's catch-up with its belt (ten
-        # periods of belt travel, 20 mm) read 2000 mm/s: a 'limit' quick stop.  (A robot on
-        # its own trajectory moved one sample: for this one cycle its velocity reads low;
-        # the next cycle's, over one period again, is its own.)
-        periods = (ctx.t_ns - self._last_t_ns + self._period_ns // 2) // self._period_ns
-        self._last_t_ns = ctx.t_ns
-        positions, velocities = self._setpoints(outs, periods)
+        # the velocities over ONE period, also after an overrun: the drive interpolates
+        # between consecutive SYNC targets and the slipped periods sent no SYNC (it held the
+        # last target), so the whole catch-up is executed in the next period; that is the
+        # velocity the axis limits must see (dividing by the slipped periods hid it)
+        positions, velocities = self._setpoints(outs)
         self._bookkeeping(ctx, outs, extra, events)
         self._sent.append(positions)
         self._record_masters()
@@ -322,11 +314,11 @@ class CellSource:
         return SourceOutput(AxisSetpoints(positions, None, velocities), self._status,
                             events=tuple(events), done=done)
 
-    def _setpoints(self, outs: dict[str, RobotOutput], periods: int = 1
+    def _setpoints(self, outs: dict[str, RobotOutput]
                    ) -> tuple[tuple[float, ...], tuple[float, ...]]:
         """Every robot's joints [mm | deg] and their velocities [mm/s | deg/s] (backward
-        differences over the ``periods`` since the last SYNC), robot after robot."""
-        T = self.T if periods <= 1 else periods * self.T
+        differences over one period), robot after robot."""
+        T = self.T
         joints: list[float] = []
         for (r, machine, _j0, _n, base_inv, tool_inv), plain, turns in zip(
                 self._machines, self._plain, self._turns):

@@ -280,6 +280,8 @@ class Controller:
         self.k = 0
         self.t0 = 0
         self.timing = Timing()
+        #: periods the time base slipped before this cycle's SYNC (an overrun), else 0
+        self.slipped_periods = 0
         #: the cycle records: all (keep_trace=True: tests, short runs), the last N
         #: (keep_trace=N: bounded, long runs) or none (False)
         self.trace: list[CycleRecord] | deque[CycleRecord] = \
@@ -348,6 +350,7 @@ class Controller:
         transport = self.transport
         deadline = self.t0 + k * self.period_ns
         late = clock.now_ns() - deadline
+        self.slipped_periods = 0
         if late > self.period_ns:
             # overrun by more than a period: do not fire a burst of SYNCs; the time base
             # slips by whole periods (the cycle index, the tracker's sample, goes on by one;
@@ -357,6 +360,7 @@ class Controller:
             self.t0 += slip
             deadline += slip
             self.timing.overruns += 1
+            self.slipped_periods = periods
             for m in self.masters:
                 m.skip(periods)  # the belt moved on meanwhile
             self._master_for.clear()
@@ -696,6 +700,11 @@ class Controller:
                             out.stop.kind, out.stop.detail)
         if bad is not None:
             axis, detail = bad
+            if self.slipped_periods:
+                # the evidence of why: the drives held their target through the slip (no
+                # SYNC) and would execute the whole catch-up in one period
+                detail += (f", after an overrun: the time base slipped by "
+                           f"{self.slipped_periods} period(s), no SYNC sent for them")
             self.quick_stop(k, t_s, axis.label, "limit", detail)
             for a in self.axes:
                 a.send(cia402.CW_QUICK_STOP_CMD, a.target)
