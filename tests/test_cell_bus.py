@@ -26,6 +26,7 @@ import numpy as np
 import pytest
 
 from controller.canopen.apps.cell import CellSource
+from controller.conveyor.telemetry import ItemStatus
 from controller.canopen.apps.follow import ConveyorFollow
 from controller.canopen.config import load_config, parse_config
 from controller.canopen.master.cycle import EXIT_ERROR, EXIT_OK, EXIT_REACTION, Controller
@@ -712,3 +713,48 @@ def test_a_short_stall_within_the_axis_limits_is_ridden_through(tmp_path):
     assert all(abs(v - BELT_A_MM_S) < 5.0 for v in around)   # r1 moves with belt A
     assert abs(vx[61] - 3 * BELT_A_MM_S) < 15.0
     assert not _stalled_into_the_limit(*_stepped_telemetry(ctl))
+
+
+def test_item_bookkeeping_per_cycle_is_bounded_by_the_open_items(tmp_path):
+    """Issue 12 (O(1) work per cycle in long runs): 110 items on belt B2 in 28 s (every
+    0.25 s, types 1 and 2 alternating; B2's window ends 300 mm downstream, r2 is given
+    MasterFrame = B2 every 0.2 s, so it catches or misses each type-2 item and ignores the
+    others): the cell's item bookkeeping looks at no more records in a cycle than the
+    trigger buffer and the robot's links can hold, not at every record made so far (before:
+    all of them, every cycle); its counts are those of a full recount of the records, and
+    every item is reported once (``on_item``) or is unfinished at the end."""
+    n = 110
+    times = ", ".join(f"{0.3 + 0.25 * k:.2f}" for k in range(n))
+    old = "{frame: B2, robots: [r2], trigger_times: [0.3, 0.6], types: [1, 2]}"
+    assert old in TEXT
+    text = TEXT.replace(old, "{frame: B2, robots: [r2], trigger_times: [" + times + "], "
+                        "types: [" + ", ".join(str(1 + k % 2) for k in range(n)) + "]}")
+    b2 = text.index("- name: B2")
+    text = text[:b2] + text[b2:].replace("downstream: 1200}", "downstream: 300}", 1)
+    old = "- {time_s: 0.5, frame: B2}\n          - {time_s: 4.5, frame: none}"
+    assert old in text
+    text = text.replace(old, "\n          ".join(
+        f"- {{time_s: {0.5 + 0.2 * k:.1f}, frame: B2}}" for k in range(140))
+        + "\n          - {time_s: 29.5, frame: none}")
+    path = tmp_path / "bus.yml"
+    path.write_text(text)
+    cfg = parse_config(text, str(path), base_dir=BUS.parent)
+    reported: list[tuple[str, int]] = []
+    src = CellSource(cfg.tracking.cell, duration_s=30.0,
+                     on_item=lambda name, rec: reported.append((name, rec.item_id)))
+    _run(cfg, src)
+    r2 = src.run.robots["r2"]
+    assert len(r2.records) == n                           # each one triggered
+    bound = r2.buffer.capacity + len(cfg.tracking.cell.frames) + 1
+    assert 0 < src._items["r2"].touched_max <= bound < len(r2.records)
+    for rc in cfg.tracking.cell.robots:
+        recs = src.records(rc.name)
+        sm = src.summaries[rc.name]
+        assert (sm.triggered, sm.caught, sm.missed, sm.ignored) == (
+            len(recs), sum(r.caught for r in recs),
+            sum(r.status is ItemStatus.MISSED for r in recs),
+            sum(r.status is ItemStatus.IGNORED for r in recs))
+    assert len(reported) == len(set(reported))
+    assert sorted(reported + [(name, r.item_id) for name, r in src.unfinished()]) == sorted(
+        (rc.name, r.item_id) for rc in cfg.tracking.cell.robots for r in src.records(rc.name))
+    assert src.summaries["r2"].ignored > 0 and src.summaries["r2"].caught > 0

@@ -46,6 +46,7 @@ from __future__ import annotations
 import math
 from collections import deque
 from collections.abc import Callable
+from itertools import islice
 from dataclasses import dataclass, field, replace
 
 from ...cell.run import CellRun, HeldSource
@@ -112,6 +113,48 @@ class _Trace:
     events: list = field(default_factory=list)
 
 
+class _ItemCounts:
+    """One robot's item bookkeeping of a run: the records not reported yet (``open``, in
+    record order), the caught / missed / ignored counts over every record, and the
+    contribution to them of each record that can still change (``watch``); finished records
+    leave both (their counts stay).  ``touched_max`` [records]: the most records one cycle
+    looked at (open ones among them; a test's bound on the per-cycle work)."""
+
+    def __init__(self) -> None:
+        self.seen = 0
+        self.open: dict[int, ItemRecord] = {}
+        self.watch: dict[int, tuple[bool, bool, bool]] = {}
+        self.caught = self.missed = self.ignored = 0
+        self.touched_max = 0
+
+    def sync(self, r: RobotGroup) -> None:
+        """Take the records the core made since the last call (the newest of its
+        insertion-ordered dict): open, counted from nothing."""
+        records = r.records
+        new = len(records) - self.seen
+        if new <= 0:
+            return
+        fresh = list(islice(reversed(records.values()), new))
+        for rec in reversed(fresh):
+            self.open[rec.item_id] = rec
+            self.watch.setdefault(rec.item_id, (False, False, False))
+        self.seen = len(records)
+
+    def count(self, item_id: int, rec: ItemRecord) -> None:
+        now = (rec.caught, rec.status is ItemStatus.MISSED, rec.status is ItemStatus.IGNORED)
+        was = self.watch.get(item_id, (False, False, False))
+        if now != was:
+            self.caught += now[0] - was[0]
+            self.missed += now[1] - was[1]
+            self.ignored += now[2] - was[2]
+        self.watch[item_id] = now
+
+    def keep(self, ids: set[int]) -> None:
+        """Watch only ``ids`` from now on (the others cannot change any more)."""
+        for item_id in [i for i in self.watch if i not in ids]:
+            del self.watch[item_id]
+
+
 class CellSource:
     """Run ``.tracking.cell`` (see the module docstring).
 
@@ -148,7 +191,7 @@ class CellSource:
         self._prev_c: dict[str, float] = {}
         self.summaries: dict[str, RobotSummary] = {r.name: RobotSummary(r.name)
                                                    for r in cell.robots}
-        self._reported: set[tuple[str, int]] = set()
+        self._items = {r.name: _ItemCounts() for r in cell.robots}
         self._warned: set[str] = set()
         self.traces: dict[str, _Trace] = {r.name: _Trace() for r in cell.robots}
         self.master_values: dict[str, list[tuple[float, ...]]] = {}
@@ -385,26 +428,41 @@ class CellSource:
         return math.sqrt(s)
 
     def _finish_items(self, name: str, r: RobotGroup, T: float) -> None:
+        """Report the items whose outcome became final (``on_item``, in record order) and
+        update the robot's counts.  Only the records that can still change are looked at:
+        the ones not reported yet, those in the trigger buffer or a link's current item
+        (the core changes no other record: a SKIPPED item is taken again only from the
+        buffer), and those that were so at the last cycle; the buffer bounds them, not the
+        number of items of the run (issue 12: O(1) work per cycle in long runs)."""
         sm = self.summaries[name]
         prog = self.run.programs.get(name) if self.run is not None else None
+        ic = self._items[name]
+        ic.sync(r)
         final = (ItemStatus.MISSED, ItemStatus.SKIPPED, ItemStatus.LOST, ItemStatus.IGNORED)
-        triggered = caught = missed = ignored = 0
-        for rec in r.records.values():
-            triggered += 1
-            caught += rec.caught
-            missed += rec.status is ItemStatus.MISSED
-            ignored += rec.status is ItemStatus.IGNORED
-            key = (name, rec.item_id)
-            if key in self._reported:
-                continue
-            done = rec.status in final or (rec.status is ItemStatus.CAUGHT and (
-                rec.left_sample is not None or
-                (prog is not None and rec.item_id in prog.picks)))
-            if done:
-                self._reported.add(key)
-                if self.on_item is not None:
-                    self.on_item(name, rec)
-        sm.triggered, sm.caught, sm.missed, sm.ignored = triggered, caught, missed, ignored
+        watch = set(ic.open)
+        watch.update(e.id for e in r.buffer)
+        watch.update(link.record.item_id for link in r.links if link.record is not None)
+        records = r.records
+        looked = ic.watch.keys() | watch
+        for item_id in looked:
+            rec = records.get(item_id)
+            if rec is not None:
+                ic.count(item_id, rec)
+        ic.keep(watch)
+        ic.touched_max = max(ic.touched_max, len(looked))
+        if ic.open:
+            done_ids = []
+            for item_id, rec in ic.open.items():
+                if rec.status in final or (rec.status is ItemStatus.CAUGHT and (
+                        rec.left_sample is not None or
+                        (prog is not None and rec.item_id in prog.picks))):
+                    done_ids.append(item_id)
+                    if self.on_item is not None:
+                        self.on_item(name, rec)
+            for item_id in done_ids:
+                del ic.open[item_id]
+        sm.triggered, sm.caught, sm.missed, sm.ignored = (
+            len(records), ic.caught, ic.missed, ic.ignored)
         sm.picked = len(prog.picks) if prog is not None else 0
 
     def _master_lost(self, lost: set[int]) -> None:
@@ -460,8 +518,13 @@ class CellSource:
     def unfinished(self) -> list[tuple[str, ItemRecord]]:
         """(robot, record) of every item whose outcome is not final yet (still pending or
         being tracked when the run ended; ``on_item`` has not had them)."""
-        return [(rc.name, rec) for rc in self.cell.robots for rec in self.records(rc.name)
-                if (rc.name, rec.item_id) not in self._reported]
+        out: list[tuple[str, ItemRecord]] = []
+        for rc in self.cell.robots:
+            ic = self._items[rc.name]
+            if self.run is not None:
+                ic.sync(self.run.robots[rc.name])
+            out.extend((rc.name, ic.open[i]) for i in sorted(ic.open))
+        return out
 
     def records(self, name: str) -> list[ItemRecord]:
         """Robot ``name``'s item records, by item id."""
