@@ -54,12 +54,6 @@ _IMFS: tuple[Imfs, ...] = (Imfs.NOT_SYNCHRONIZED, Imfs.NOT_SYNCHRONIZED, Imfs.SY
 assert [int(s) for s in TrackState] == [0, 1, 2, 3]
 
 
-def _norm(v: Vec) -> float:
-    s = 0.0
-    for x in v:
-        s += x * x
-    return math.sqrt(s)
-
 
 class Tracker:
     """One tracker.  ``engage()`` / ``disengage()`` take effect at the next ``update()``."""
@@ -207,7 +201,7 @@ class Tracker:
 
     def _check_master(self, m: MotionState) -> TrackError:
         vel_max, rot_vel_max, acc_max, rot_acc_max = self._master_max
-        x, y, z = m.vel  # (the norms written out: _norm's sums, in its order)
+        x, y, z = m.vel  # (the vector norms written out: sums of squares in x, y, z order)
         if math.sqrt(x * x + y * y + z * z) > vel_max or abs(m.ang_vel) > rot_vel_max:
             return _MASTER_VELOCITY
         x, y, z = m.acc
