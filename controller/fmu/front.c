@@ -819,19 +819,9 @@ EXPORT int fmi2DoStep(void *c, double t, double h, int noSetPrior) {
         log_error(inst, text);
         return STATUS_ERROR;
     }
-    if (inst->step_fn && inst->io_on) {
-        int gil = py.GILState_Ensure();
-        int pushed = push_inputs(inst);
-        if (pushed) {
-            py.GILState_Release(gil);
-            return pushed;
-        }
-        inst->worst = 0;
-        int stepped = status_of(inst, direct_step2(inst, t, h));
-        inst->out_valid = read_values(inst, out_vrs, N_OUT, inst->out_value) == 0;
-        py.GILState_Release(gil);
-        return stepped;
-    }
+    if (inst->step_fn && inst->io_on)   /* (attach sets step_fn only with the list: STEP's
+                                            list path, which returns) */
+        STEP(inst, direct_step2(inst, t, h));
     STEP(inst, ((int (*)(void *, double, double, int))wrapped(&w_fmi2DoStep, "fmi2DoStep"))(
                    c, t, h, noSetPrior));
 }
