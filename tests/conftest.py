@@ -48,24 +48,40 @@ def booted_follow(tmp_path, stepped_controller):
     return _make
 
 
-@pytest.fixture(scope="module")
-def canopen_stack(pytestconfig):
-    """The independent CANopen stack (CANopenNode's canopend, cocomm, the demo device) built
-    from the vendor sources: skipped where they are absent, a failure in CI."""
+def _vendor_build(pytestconfig, available, build):
+    """A vendor build for a test tier: ``available()`` -> (ok, why) first; skipped where the
+    sources are absent, a failure in CI (``--vcan-required`` or CI=true), a failed build a
+    failure (one :class:`~controller.testing.vendor.VendorError` for every vendor build)."""
     import os
 
-    from controller.testing.vendor import VendorError, build_stack, stack_available
+    from controller.testing.vendor import VendorError
 
-    ok, why = stack_available()
+    ok, why = available()
     required = pytestconfig.getoption("--vcan-required") or os.environ.get("CI") == "true"
     if not ok:
         if required:
             pytest.fail(why, pytrace=False)
         pytest.skip(why)
     try:
-        return build_stack()
+        return build()
     except VendorError as exc:
         pytest.fail(str(exc), pytrace=False)
+
+
+@pytest.fixture(scope="module")
+def canopen_stack(pytestconfig):
+    """The independent CANopen stack (CANopenNode's canopend, cocomm, the demo device) built
+    from the vendor sources: skipped where they are absent, a failure in CI."""
+    from controller.testing.vendor import build_stack, stack_available
+    return _vendor_build(pytestconfig, stack_available, build_stack)
+
+
+@pytest.fixture(scope="module")
+def fmi_tools(pytestconfig):
+    """The independent FMI importers (the Reference-FMUs' fmusim, the FMU Compliance Checker)
+    built from the vendor sources: skipped where they are absent, a failure in CI."""
+    from controller.testing.fmi_tools import build_tools, tools_available
+    return _vendor_build(pytestconfig, tools_available, build_tools)
 
 
 def _conveyor_example(name: str):

@@ -33,22 +33,6 @@ ROOT = Path(__file__).resolve().parents[1]
 CROSSCHECK_INPUT = ROOT / "fmu" / "crosscheck" / "CanTracker_in.csv"
 
 
-@pytest.fixture(scope="module")
-def fmi_tools(pytestconfig):
-    from controller.testing.fmi_tools import VendorError, build_tools, tools_available
-
-    ok, why = tools_available()
-    required = (pytestconfig.getoption("--vcan-required") or os.environ.get("CI") == "true")
-    if not ok:
-        if required:
-            pytest.fail(why, pytrace=False)
-        pytest.skip(why)
-    try:
-        return build_tools()
-    except VendorError as exc:
-        pytest.fail(str(exc), pytrace=False)
-
-
 def _bare_env() -> dict[str, str]:
     """An importer's environment: nothing about Python (the front library loads it)."""
     return {"PATH": "/usr/bin:/bin", "HOME": os.environ.get("HOME", "/tmp")}
