@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..canopen.apps.cell import CellSource, format_cell_table, frame_counts
+from ..canopen.apps.cell import CellSource, end_summary, format_cell_table
 from ..canopen.apps.report import Telemetry, status_line, summary_table
 from ..canopen.config import ControllerConfig
 from ..canopen.io.canbus import StopSignals
@@ -117,8 +117,7 @@ def run_cell_demo(args: argparse.Namespace, cfg: ControllerConfig) -> int:
             for robot, rec in app.unfinished():   # (as the demo: the items still pending)
                 tel.cell_item(robot, rec)
             tel.close(end, error, extra={
-                "robots": {n: vars(s) for n, s in app.summaries.items()},
-                "frames": frame_counts(app), "wall_s": time.perf_counter() - wall0})
+                **end_summary(app), "wall_s": time.perf_counter() - wall0})
     wall = time.perf_counter() - wall0
     status.close()
     if not args.no_plot and app.recorded:

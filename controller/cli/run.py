@@ -42,7 +42,7 @@ import time
 from collections import deque
 from collections.abc import Callable
 
-from ..canopen.apps.cell import CellSource, format_cell_table, frame_counts
+from ..canopen.apps.cell import CellSource, end_summary, format_cell_table
 from ..canopen.apps.report import Telemetry, status_line, summary_table, timing_summary
 from ..canopen.config import load_config
 from ..canopen.config.busload import check_bus_load
@@ -383,8 +383,7 @@ def main(argv: list[str] | None = None, prog: str = "cantrack run") -> int:
     if telemetry:
         extra: dict = {"exit_code": code}
         if isinstance(app, CellSource):
-            extra.update(robots={n: vars(x) for n, x in app.summaries.items()},
-                         frames=frame_counts(app))
+            extra.update(end_summary(app))
             for robot, rec in app.unfinished():   # (the items still pending)
                 telemetry[0].cell_item(robot, rec)
         telemetry[0].close(end, error, extra=extra)

@@ -74,7 +74,7 @@ from ..master.source import (
     TrackTypes,
 )
 
-__all__ = ["CellSource", "RobotSummary", "format_cell_table", "frame_counts"]
+__all__ = ["CellSource", "RobotSummary", "end_summary", "format_cell_table", "frame_counts"]
 
 _Z = (0.0, 0.0, 1.0)
 _XYZ = frozenset("xyz")
@@ -538,6 +538,13 @@ def _state(loc: Location, c_deg: float) -> MotionState:
     """The machine pose of a robot location [mm] with tool angle ``c_deg`` [deg]."""
     p = loc.pos
     return MotionState.at(p[0], p[1], p[2], c_deg)
+
+
+def end_summary(src: CellSource) -> dict[str, dict]:
+    """The telemetry's end-line extras of a cell run (``cantrack demo`` and ``cantrack run``
+    alike): every robot's :class:`RobotSummary` and :func:`frame_counts`."""
+    return {"robots": {n: vars(s) for n, s in src.summaries.items()},
+            "frames": frame_counts(src)}
 
 
 def frame_counts(src: CellSource) -> dict[str, dict[str, int]]:
