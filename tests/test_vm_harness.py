@@ -214,6 +214,158 @@ def test_vcan_mode_and_availability(monkeypatch):
 
 
 # ---------------------------------------------------------------------------------------------
+# a guest that hangs at boot: killed at the boot limit, booted once more
+
+class _SteppedClock:
+    """The boot wait's clock [s]; ``sleep`` steps it and lets the fake guests act."""
+
+    def __init__(self):
+        self.t = 100.0
+        self.guests: list[_FakeGuest] = []
+
+    def __call__(self) -> float:
+        return self.t
+
+    def sleep(self, dt: float) -> None:
+        self.t += dt
+        for g in self.guests:
+            g.act(self.t)
+
+
+class _FakeGuest:
+    """A VM process: prints SeaBIOS's lines, then writes ``ready`` ``ready_after_s`` after
+    its start (never when None) or powers off then (``power_off``)."""
+
+    def __init__(self, jd: Path, clock: _SteppedClock, ready_after_s: float | None,
+                 power_off: bool = False):
+        self.jd, self.started, self.ready_after_s = jd, clock.t, ready_after_s
+        self.power_off = power_off
+        self.returncode: int | None = None
+        self.killed_at: float | None = None
+        self.clock = clock
+        (jd / "console.log").write_text("\x1bc\x1b[2JSeaBIOS (version 1.16.2-debian)\r\n"
+                                        "Booting from ROM..\r\n")
+
+    def act(self, t: float) -> None:
+        if (self.returncode is None and self.ready_after_s is not None
+                and t - self.started >= self.ready_after_s):
+            if self.power_off:
+                self.returncode = 0
+            else:
+                (self.jd / "ready").write_text("1.5\n")
+
+    def poll(self):
+        return self.returncode
+
+    def kill(self):
+        self.killed_at = self.clock.t
+        self.returncode = -9
+
+    def wait(self, timeout=None):
+        return self.returncode
+
+
+def _boot(tmp_path, *ready_after_s, power_off=False, factor=1.5):
+    clock = _SteppedClock()
+    plan = list(ready_after_s)
+
+    def start(attempt):
+        assert attempt == len(clock.guests) + 1
+        (tmp_path / "ready").unlink(missing_ok=True)
+        g = _FakeGuest(tmp_path, clock, plan[attempt - 1], power_off)
+        clock.guests.append(g)
+        return g
+
+    def run():
+        return vm.boot_until_ready(start, tmp_path / "ready", tmp_path / "console.log",
+                                   limit_s=60.0, factor=factor, clock=clock,
+                                   sleep=clock.sleep, poll_s=0.5)
+    return clock, run
+
+
+def test_hung_boot_killed_at_the_stretched_limit_and_booted_again(tmp_path, caplog):
+    """The first guest never writes ``ready`` (as in CI: nothing after "Booting from ROM.."):
+    killed 60 s x 1.5 after its start, logged, and a second boot whose guest is ready 3 s
+    after its start is the one returned."""
+    clock, run = _boot(tmp_path, None, 3.0)
+    with caplog.at_level("WARNING", logger=vm.__name__):
+        boot = run()
+    first, second = clock.guests
+    assert (boot.proc, boot.attempt, boot.ready_s) == (second, 2, 3.0)
+    assert first.killed_at == 100.0 + 90.0 and second.killed_at is None
+    assert boot.started == 190.0
+    note = ("boot 1 of 2: no ready file within the boot limit of 90 s (60 s x the measured "
+            "slowness 1.50), the console last printed 'Booting from ROM..': VM killed")
+    assert boot.notes == (note,)
+    assert [r.getMessage() for r in caplog.records] == [note + "; booting once more"]
+
+
+def test_ready_at_once_is_one_boot(tmp_path, caplog):
+    clock, run = _boot(tmp_path, 4.0)
+    boot = run()
+    assert (boot.attempt, boot.ready_s, boot.notes) == (1, 4.0, ())
+    assert clock.guests[0].killed_at is None and not caplog.records
+
+
+def test_two_hung_boots_fail_naming_the_limit_and_the_console(tmp_path):
+    clock, run = _boot(tmp_path, None, None, factor=1.0)
+    with pytest.raises(vm.VmTimeoutError) as e:
+        run()
+    msg = str(e.value)
+    assert msg.startswith("the VM did not boot: 2 boots, none wrote its ready file within "
+                          "the boot limit of 60 s (60 s x the measured slowness 1.00) (boot 1 "
+                          "of 2: no ready file within the boot limit of 60 s")
+    assert msg.count("the console last printed 'Booting from ROM..'") == 2
+    assert "--- guest console (last lines) ---" in msg and "Booting from ROM.." in e.value.console
+    assert [g.killed_at for g in clock.guests] == [160.0, 220.0]
+
+
+def test_guest_powering_off_before_ready_is_not_booted_again(tmp_path):
+    """An init failure (the guest powers off without ``ready``) is the caller's to report
+    (the guest's init-error): no second boot."""
+    clock, run = _boot(tmp_path, 2.0, None, power_off=True)
+    boot = run()
+    assert (boot.attempt, boot.ready_s, boot.proc.poll()) == (1, None, 0)
+    assert len(clock.guests) == 1 and clock.guests[0].killed_at is None
+
+
+FAKE_QEMU = r"""
+J="$1/.cantrack-vm"
+n=$(cat "$1/boots" 2>/dev/null || echo 0); n=$((n + 1)); echo $n > "$1/boots"
+printf 'SeaBIOS (version fake)
+Booting from ROM..
+'
+if [ $n = 1 ]; then exec sleep 600; fi
+echo 0.5 > "$J/ready"
+echo "guest-ran boot $n" > "$J/stdout"; : > "$J/stderr"
+echo 0 > "$J/rc"
+"""
+
+
+def test_run_in_vm_boots_again_after_a_hung_boot(tmp_path, monkeypatch):
+    """run_in_vm with a fake qemu whose first boot hangs: the hung VM killed at the boot
+    limit (0.5 s here), the second boot's result, the first console kept, the retry in the
+    result."""
+    k = vm.KernelInfo("9.9.9-test", tmp_path / "vmlinuz", tmp_path)
+    monkeypatch.setattr(vm, "find_kernel", lambda: k)
+    monkeypatch.setattr(vm, "initramfs_path", lambda kernel: tmp_path / "initrd")
+    monkeypatch.setattr(vm, "boot_image", lambda kernel: (tmp_path / "vmlinux", "pvh"))
+    monkeypatch.setattr(vm, "find_qemu", lambda: Path("/bin/sh"))
+    monkeypatch.setattr(vm, "qemu_command", lambda qemu, image, initrd, scratch, **kw: [
+        "/bin/sh", "-c", FAKE_QEMU, "sh", str(scratch)])
+    scratch = tmp_path / "scratch"
+    r = vm.run_in_vm(["true"], timeout_s=30, env={"CANTRACK_SPEED_FACTOR": "1"},
+                     scratch_dir=scratch, ready_timeout_s=0.5)
+    assert (r.returncode, r.stdout, r.boot_attempts) == (0, "guest-ran boot 2\n", 2)
+    assert r.boot_notes == ("boot 1 of 2: no ready file within the boot limit of 0.5 s (0.5 s x "
+                            "the measured slowness 1.00), the console last printed 'Booting "
+                            "from ROM..': VM killed",)
+    jd = scratch / vm.JOB_DIR
+    assert "Booting from ROM.." in (jd / "console-1.log").read_text()
+    assert (scratch / "boots").read_text() == "2\n"
+
+
+# ---------------------------------------------------------------------------------------------
 # capture → pcap → tshark
 
 def _msgs(spec):

@@ -283,7 +283,9 @@ def pytest_terminal_summary(terminalreporter, exitstatus, config: pytest.Config)
     for r in runner.results:
         boot = f"boot {r.boot_s:.1f} s, " if r.boot_s is not None else ""
         cmd = f"command {r.command_s:.1f} s" if r.command_s is not None else ""
-        parts.append(f"{boot}{cmd}, slowness x {r.speed_factor:.2f}")
+        retry = (f", booted {r.boot_attempts} times ({'; '.join(r.boot_notes)})"
+                 if r.boot_attempts > 1 else "")
+        parts.append(f"{boot}{cmd}, slowness x {r.speed_factor:.2f}{retry}")
     terminalreporter.write_line(
         f"vcan ({runner.mode}, {resolve_mode(config.getoption('--vcan-mode'))}): "
         f"{len(runner.results)} run(s): " + "; ".join(parts))

@@ -31,6 +31,7 @@ import dataclasses
 import fcntl
 import gzip
 import hashlib
+import logging
 import lzma
 import os
 import re
@@ -42,8 +43,9 @@ import sys
 import tempfile
 import time
 import zlib
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
+from typing import Protocol
 
 from ..errors import CantrackError
 
@@ -68,6 +70,20 @@ DEFAULT_CHANNEL = "vcan0"
 KERNEL_CMDLINE = ("console=ttyS0 quiet panic=-1 rdinit=/init tsc=reliable no_timer_check "
                   "cryptomgr.notests mitigations=off 8250.nr_uarts=1 random.trust_cpu=on")
 _FORMAT = 4  # bump when the initramfs layout or INIT_SCRIPT changes meaning
+
+#: the time [s, idle machine; x the measured slowness] from starting qemu until the guest's
+#: ``ready`` file (vcan0 up, the command about to start): an idle boot takes about 4 s, so
+#: past 15 times that the guest hangs (seen once in CI: nothing after SeaBIOS's "Booting from
+#: ROM.." for 245 s) and is killed and booted again (:func:`boot_until_ready`)
+READY_LIMIT_S = 60.0
+#: boots tried before giving up (the command has not started when ``ready`` is missing, so a
+#: second boot is safe)
+BOOT_ATTEMPTS = 2
+#: the files of one boot in the job directory, removed before another boot
+_BOOT_FILES = ("ready", "rc", "rc.tmp", "stdout", "stderr", "timed-out", "uptime-end",
+               "init-error")
+
+_log = logging.getLogger(__name__)
 
 
 class VmError(CantrackError):
@@ -99,7 +115,9 @@ class VmResult:
     ``timed_out``: the command was still running at its time-out and was terminated.
     ``speed_factor``: the host's measured slowness at the start
     (:func:`controller.testing.speed.fresh_factor`), by which the time limits were stretched
-    and which the command got in ``CANTRACK_SPEED_FACTOR``.
+    and which the command got in ``CANTRACK_SPEED_FACTOR``.  ``boot_attempts``: the VM boots
+    it took (2: the first hung before ``ready`` and was killed; ``boot_notes`` says why, with
+    what its console last printed; ``boot_s`` is the boot that ran the command).
     """
 
     returncode: int
@@ -114,6 +132,8 @@ class VmResult:
     channel: str = DEFAULT_CHANNEL
     timed_out: bool = False
     speed_factor: float = 1.0
+    boot_attempts: int = 1
+    boot_notes: tuple[str, ...] = ()
 
     def check(self) -> VmResult:
         """Raise :class:`VmError` with stdout/stderr when the command failed; else self."""
@@ -575,10 +595,104 @@ def guest_env(env: Mapping[str, str] | None, scratch: Path, channel: str,
     return out
 
 
+class GuestProcess(Protocol):
+    """What :func:`boot_until_ready` needs of a started VM (a ``subprocess.Popen``)."""
+
+    returncode: int | None
+
+    def poll(self) -> int | None: ...
+
+    def kill(self) -> None: ...
+
+    def wait(self, timeout: float | None = None) -> int: ...
+
+
+@dataclasses.dataclass(frozen=True)
+class GuestBoot:
+    """A VM that booted: ``proc`` (still running, or powered off before ``ready`` when
+    ``ready_s`` is None: an init failure, reported by the caller), the boot ``attempt`` (1 or
+    2), ``started`` (``clock()`` when that boot was started), ``ready_s`` (seconds from there to
+    the ``ready`` file) and a note per boot that hung before it (``notes``)."""
+
+    proc: GuestProcess
+    attempt: int
+    started: float
+    ready_s: float | None
+    notes: tuple[str, ...] = ()
+
+
+def _last_printed(console: str) -> str:
+    """The console's last non-empty line without terminal escapes (SeaBIOS clears the
+    screen), or "(nothing)"."""
+    text = re.sub(r"\x1b\[[0-9;?]*[A-Za-z]|\x1b.", "", console).replace("\r", "\n")
+    lines = [ln.strip() for ln in text.splitlines() if ln.strip()]
+    return lines[-1] if lines else "(nothing)"
+
+
+def _kill(proc: GuestProcess) -> None:
+    if proc.poll() is None:
+        proc.kill()
+        proc.wait()
+
+
+def boot_until_ready(start: Callable[[int], GuestProcess], ready: Path, console: Path, *,
+                     limit_s: float = READY_LIMIT_S, factor: float = 1.0,
+                     attempts: int = BOOT_ATTEMPTS,
+                     clock: Callable[[], float] = time.monotonic,
+                     sleep: Callable[[float], object] = time.sleep,
+                     poll_s: float = 0.05) -> GuestBoot:
+    """Start the VM (``start(attempt)``, attempt 1, 2, ...) and wait until the guest writes its
+    ``ready`` file, at most ``limit_s`` x ``factor`` (the boot limit stretched by the measured
+    slowness, as the harness's other limits); a guest that has not written it by then is
+    killed and booted once more (its command has not started: a retry is safe), logged and
+    noted in the result.  The guest powering off before ``ready`` returns at once (the
+    caller reports the init failure).
+
+    Raises :class:`VmTimeoutError` naming the boot limit and the last line each boot's
+    ``console`` printed when every attempt hung, or when ``ready`` appeared only as the VM was
+    killed (the command may have started: no retry).  ``clock``/``sleep``/``poll_s``: the
+    polling (a test steps them).
+    """
+    limit = limit_s * factor
+    def sec(x: float) -> str:
+        return f"{x:.1f}".rstrip("0").rstrip(".")
+    how = f"{sec(limit)} s ({sec(limit_s)} s x the measured slowness {factor:.2f})"
+    notes: list[str] = []
+    for attempt in range(1, attempts + 1):
+        proc = start(attempt)
+        started = clock()
+        booted: GuestBoot | None = None
+        try:
+            while booted is None and clock() - started < limit:
+                if ready.is_file():
+                    booted = GuestBoot(proc, attempt, started, clock() - started, tuple(notes))
+                elif proc.poll() is not None:   # powered off: an init failure, not a hang
+                    booted = GuestBoot(proc, attempt, started, None, tuple(notes))
+                else:
+                    sleep(poll_s)
+        finally:
+            if booted is None:   # hung (or KeyboardInterrupt etc.): never leave a VM behind
+                _kill(proc)
+        if booted is not None:
+            return booted
+        text = _read(console)
+        if ready.is_file():
+            raise VmTimeoutError(f"VM boot {attempt}: the ready file came only as the VM was "
+                                 f"killed at the boot limit of {how}; its command may have "
+                                 "started, so it is not booted again", console=text)
+        notes.append(f"boot {attempt} of {attempts}: no ready file within the boot limit of "
+                     f"{how}, the console last printed {_last_printed(text)!r}: VM killed")
+        if attempt < attempts:
+            _log.warning("%s; booting once more", notes[-1])
+    raise VmTimeoutError(f"the VM did not boot: {attempts} boots, none wrote its ready file "
+                         f"within the boot limit of {how} (" + "; ".join(notes) + ")",
+                         console=_read(console))
+
+
 def run_in_vm(argv: Sequence[str], timeout_s: float = 120.0, env: Mapping[str, str] | None = None,
               *, cwd: str | Path | None = None, scratch_dir: str | Path | None = None,
               channel: str = DEFAULT_CHANNEL, memory_mb: int = 1024, smp: int = 2,
-              boot_timeout_s: float = 90.0) -> VmResult:
+              boot_timeout_s: float = 90.0, ready_timeout_s: float = READY_LIMIT_S) -> VmResult:
     """Boot the VM, run ``argv`` on a real SocketCAN ``channel`` (``vcan0``), power off.
 
     ``argv`` uses host paths (the guest sees the host's ``/`` read-only); the command runs as
@@ -588,11 +702,16 @@ def run_in_vm(argv: Sequence[str], timeout_s: float = 120.0, env: Mapping[str, s
     ``$CANTRACK_SCRATCH`` (created with ``tempfile.mkdtemp`` when None; the caller removes it).
 
     ``timeout_s`` limits the command (seconds, guest time): past it the guest's init sends
-    SIGTERM (SIGKILL 5 s later), the result has ``timed_out=True``.  ``boot_timeout_s`` is
-    added for booting and powering off; past both, qemu is killed and :class:`VmTimeoutError`
-    raised.  Both are stretched by :func:`limit_factor`, which the command gets in
-    ``CANTRACK_SPEED_FACTOR``.  :class:`VmError` when the guest powered off without an exit code (boot or init
-    failure; the message ends with the guest console's last lines).
+    SIGTERM (SIGKILL 5 s later), the result has ``timed_out=True``.  ``ready_timeout_s``
+    limits the boot until the guest's ``ready`` file: a guest that hangs before it is killed
+    and booted once more (:func:`boot_until_ready`; ``boot_attempts``/``boot_notes`` of the
+    result, logged), :class:`VmTimeoutError` when the second boot hangs too.
+    ``boot_timeout_s`` is added to the command's limit for booting and powering off; past
+    both (from the start of the boot that ran the command), qemu is killed and
+    :class:`VmTimeoutError` raised.  All three are stretched by :func:`limit_factor`, which
+    the command gets in ``CANTRACK_SPEED_FACTOR``.  :class:`VmError` when the guest powered off
+    without an exit code (boot or init failure; the message ends with the guest console's last
+    lines).
     """
     if not argv:
         raise VmError("run_in_vm: empty argv")
@@ -628,26 +747,39 @@ def run_in_vm(argv: Sequence[str], timeout_s: float = 120.0, env: Mapping[str, s
                             f"TIMEOUT={max(1, round(timeout_s))}\n")
     cmd = qemu_command(qemu, image, initrd, scratch, memory_mb=memory_mb, smp=smp)
     console_path = jd / "console.log"
-    t0 = time.time()
     m0 = time.monotonic()
-    with open(console_path, "wb") as console_f:
-        proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=console_f,
-                                stderr=subprocess.STDOUT, start_new_session=True)
-        try:
-            proc.wait(timeout=timeout_s + boot_timeout_s)
-        except subprocess.TimeoutExpired:
+    starts: list[float] = []
+
+    def start(attempt: int) -> subprocess.Popen:
+        for name in _BOOT_FILES:
+            (jd / name).unlink(missing_ok=True)
+        if attempt > 1:   # (the hung boot's console kept beside the new one)
+            console_path.replace(jd / f"console-{attempt - 1}.log")
+        starts.append(time.time())
+        with open(console_path, "wb") as console_f:
+            return subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=console_f,
+                                    stderr=subprocess.STDOUT, start_new_session=True)
+
+    boot = boot_until_ready(start, jd / "ready", console_path, limit_s=ready_timeout_s,
+                            factor=factor)
+    proc = boot.proc
+    t0 = starts[-1]
+    whole = timeout_s + boot_timeout_s
+    try:
+        proc.wait(timeout=max(0.0, whole - (time.monotonic() - boot.started)))
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.wait()
+        raise VmTimeoutError(
+            f"VM still running after {whole:.0f} s (command limit {timeout_s:.0f} s + boot "
+            f"{boot_timeout_s:.0f} s): qemu killed; scratch "
+            f"{scratch}\n--- stdout (tail) ---\n{_read(jd / 'stdout')[-2000:]}\n"
+            f"--- stderr (tail) ---\n{_read(jd / 'stderr')[-2000:]}",
+            console=_read(console_path), scratch_dir=scratch) from None
+    finally:
+        if proc.poll() is None:   # KeyboardInterrupt etc.: never leave a VM behind
             proc.kill()
             proc.wait()
-            raise VmTimeoutError(
-                f"VM still running after {timeout_s + boot_timeout_s:.0f} s (command limit "
-                f"{timeout_s:.0f} s + boot {boot_timeout_s:.0f} s): qemu killed; scratch "
-                f"{scratch}\n--- stdout (tail) ---\n{_read(jd / 'stdout')[-2000:]}\n"
-                f"--- stderr (tail) ---\n{_read(jd / 'stderr')[-2000:]}",
-                console=_read(console_path), scratch_dir=scratch) from None
-        finally:
-            if proc.poll() is None:   # KeyboardInterrupt etc.: never leave a VM behind
-                proc.kill()
-                proc.wait()
     wall = time.monotonic() - m0
     console = _read(console_path)
     rc_file = jd / "rc"
@@ -665,7 +797,7 @@ def run_in_vm(argv: Sequence[str], timeout_s: float = 120.0, env: Mapping[str, s
                     stderr=_read(jd / "stderr"), scratch_dir=scratch, mode="vm",
                     boot_s=boot_s, command_s=command_s, wall_s=wall, console=console,
                     channel=channel, timed_out=(jd / "timed-out").is_file(),
-                    speed_factor=factor)
+                    speed_factor=factor, boot_attempts=boot.attempt, boot_notes=boot.notes)
 
 
 def qemu_command(qemu: Path, image: Path, initrd: Path, scratch: Path, *, memory_mb: int = 1024,
