@@ -444,9 +444,10 @@ def test_a_robot_with_a_tool_axis_keeps_its_angle_without_a_turn(tmp_path):
     assert running[-1].targets[0] > running[0].targets[0] + 1_000_000
 
 
-def _cantrack_run_cell(tmp_path, attempt: int):
+def _cantrack_run_cell(tmp_path, attempt: int, *, raises: type[BaseException] | None = None):
     """``cantrack run CELL.yml`` against ``cantrack sim-devices`` (a thread) on a python-can
-    virtual channel of its own, real time, 10 ms cycle: (exit code, stdout, telemetry)."""
+    virtual channel of its own, real time, 10 ms cycle: (exit code, telemetry) - with
+    ``raises``, the run must raise it: (the exception, telemetry)."""
     import os
     import threading
 
@@ -476,8 +477,14 @@ def _cantrack_run_cell(tmp_path, attempt: int):
     th.start()
     wait_file(ready, [], 30, running=lambda: not done.is_set())
     tel = d / "t.jsonl"
-    code = cmd_run.main([str(path), "-i", "virtual", "-c", channel, "-q", "--duration", "2.0",
-                         "--telemetry", str(tel)])
+    argv = [str(path), "-i", "virtual", "-c", channel, "-q", "--duration", "2.0",
+            "--telemetry", str(tel)]
+    if raises is None:
+        code = cmd_run.main(argv)
+    else:
+        with pytest.raises(raises) as info:
+            cmd_run.main(argv)
+        code = info.value
     done.wait(15)
     assert not errors, errors
     return code, [json.loads(x) for x in tel.read_text().splitlines()]
@@ -550,6 +557,39 @@ def test_cantrack_run_runs_the_cell_against_sim_devices(tmp_path, capsys):
     assert end["robots"]["r1"]["caught"] == 1 and end["robots"]["r2"]["caught"] == 1
     assert {(d["robot"], d["item"]) for d in lines if d["type"] == "item"} == {
         ("r1", 1), ("r1", 2), ("r2", 1), ("r2", 2)}
+
+
+def test_cantrack_run_of_a_cell_that_fails_ends_its_telemetry_as_a_normal_end(tmp_path,
+                                                                             monkeypatch):
+    """``cantrack run CELL.yml`` whose cycle fails (the cell's source raises in the cycle the
+    first item is triggered: an internal error, the controlled stop, the run raises it): the
+    telemetry still gets the items pending then, each once, and the end line with the same
+    keys in the same order as a normal end (exit code 2, every robot's summary, the frames'
+    counts), as ``cantrack demo`` writes a cell's telemetry on every exit."""
+    from controller.canopen.master.cycle import CycleError
+
+    step = CellSource.step
+    seen: list[tuple[str, int]] = []
+
+    def failing_step(self, ctx):
+        out = step(self, ctx)
+        if not seen and sum(s.triggered for s in self.summaries.values()):
+            seen.extend((robot, rec.item_id) for robot, rec in self.unfinished())
+            raise RuntimeError("injected fault")
+        return out
+
+    monkeypatch.setattr(CellSource, "step", failing_step)
+    exc, lines = _cantrack_run_cell(tmp_path, 0, raises=CycleError)
+    assert "injected fault" in str(exc) and seen
+    end = lines[-1]
+    assert list(end) == ["type", "end", "error", "cycles", "t_s", "phase", "events",
+                         "reactions", "timing", "exit_code", "robots", "frames"]
+    assert (end["end"], end["exit_code"]) == ("error", EXIT_ERROR)
+    assert "injected fault" in end["error"]
+    assert set(end["robots"]) == {"r1", "r2"} and set(end["frames"]) == {"A", "B", "B2"}
+    assert sum(r["triggered"] for r in end["robots"].values()) == len(seen)
+    items = [(d["robot"], d["item"]) for d in lines if d["type"] == "item"]
+    assert items == seen  # (pending when it failed: written once, at the end)
 
 
 def test_cantrack_run_refuses_the_one_belt_options_for_a_cell():

@@ -51,7 +51,7 @@ from ..canopen.io.files import write_json_atomic
 from ..canopen.io.rotating import add_arguments as add_rotation_arguments
 from ..canopen.io.transport import RealtimeTransport
 from ..canopen.apps.follow import ConveyorFollow
-from ..canopen.master.cycle import Controller
+from ..canopen.master.cycle import EXIT_ERROR, Controller
 from ..canopen.master.plc_node import attach_plc_node, plc_summary
 from ..errors import ConfigError
 from ..tracking import Mode
@@ -346,6 +346,19 @@ def main(argv: list[str] | None = None, prog: str = "cantrack run") -> int:
         telemetry.append(Telemetry(args.telemetry, ctl, max_bytes=args.file_size,
                                    max_age_s=args.file_time, keep=args.keep,
                                    every=args.telemetry_every))
+
+    def close_telemetry(end: str, error: str | None, code: int) -> None:
+        # every exit alike (as cantrack demo's cell run): a cell's items still pending, then
+        # the end line with the exit code and the cell's end_summary
+        if not telemetry:
+            return
+        extra: dict = {"exit_code": code}
+        if isinstance(app, CellSource):
+            for robot, rec in app.unfinished():
+                telemetry[0].cell_item(robot, rec)
+            extra.update(end_summary(app))
+        telemetry[0].close(end, error, extra=extra)
+
     end, error, code = "duration", None, 0
     try:
         if args.ready_file:  # (from here on SIGTERM is handled and the file is removed)
@@ -368,11 +381,10 @@ def main(argv: list[str] | None = None, prog: str = "cantrack run") -> int:
         except BaseException as exc:  # every exit writes complete files, then reports
             end, error = "error", str(exc) or type(exc).__name__
             ctl.final_states()
-            if telemetry:
-                telemetry[0].close(end, error)
+            close_telemetry(end, error, EXIT_ERROR)
             if args.report:
-                write_json_atomic(args.report, run_report(ctl, changes, transport, 2, end,
-                                                          time.perf_counter() - wall0, error))
+                write_json_atomic(args.report, run_report(
+                    ctl, changes, transport, EXIT_ERROR, end, time.perf_counter() - wall0, error))
             raise
     finally:
         signals.__exit__()
@@ -380,13 +392,7 @@ def main(argv: list[str] | None = None, prog: str = "cantrack run") -> int:
         canbus.remove_ready_file(args.ready_file)
         status.close()
     code = ctl.exit_code()
-    if telemetry:
-        extra: dict = {"exit_code": code}
-        if isinstance(app, CellSource):
-            extra.update(end_summary(app))
-            for robot, rec in app.unfinished():   # (the items still pending)
-                telemetry[0].cell_item(robot, rec)
-        telemetry[0].close(end, error, extra=extra)
+    close_telemetry(end, error, code)
     if args.report:
         write_json_atomic(args.report, run_report(ctl, changes, transport, code, end,
                                                   time.perf_counter() - wall0, error))
