@@ -83,6 +83,28 @@ def enable(m: RawMaster, cob: int, target: int, sequence=(0x06, 0x07, 0x0F)) -> 
     m.sync({cob: rpdo(sequence[-1], target)})
 
 
+def test_a_drive_keeps_its_last_1000_transitions_and_emcys(bus):
+    """Issue 12 (``cantrack sim-devices`` runs as long as the plant): a drive disabled and
+    enabled again 400 times (1203 CiA 402 transitions) and 1100 EMCYs sent keep the newest
+    1000 of each, in order."""
+    world, m = bus
+    configure_csp(m)
+    m.nmt(0x01, 11)
+    drive = world.device("x")
+    enable(m, 0x20B, 0)
+    for _ in range(400):
+        for cw in (0x06, 0x07, 0x0F):  # shutdown (8), switch on (3), enable operation (4)
+            m.sync({0x20B: rpdo(cw, 0)})
+    m.sync({0x20B: rpdo(0x0F, 0)})  # (an RPDO acts at the next SYNC)
+    assert drive.state is State.OPERATION_ENABLED
+    numbers = [n for n, _, _ in drive.transitions]
+    assert len(numbers) == 1000 and numbers[-6:] == [8, 3, 4, 8, 3, 4]
+    for i in range(1100):
+        drive.send_emcy(0x5000 + i)
+    assert len(drive.emcy_sent) == 1000
+    assert [c for c, _ in drive.emcy_sent] == [0x5000 + i for i in range(100, 1100)]
+
+
 def test_boot_up_heartbeat_and_nmt(bus):
     world, m = bus
     assert list(m.of(0x70B)) == [b"\x00"]  # boot-up of node 11 after power-on

@@ -91,6 +91,23 @@ def test_encoder_emcy_is_reported_only(make):
     assert ctl.phase is Phase.STOPPED and world.device("x").state is State.READY_TO_SWITCH_ON
 
 
+def test_a_node_that_keeps_sending_emcys_fills_no_memory(make):
+    """Issue 12: 1100 EMCYs of the encoder (reported, no stop): the controller's EMCY log
+    keeps the newest EmcyMonitor.LOG = 1000, which is what a boot error would name."""
+    world, ctl = make(end_cycle=400)
+    enc = world.device("encoder")
+
+    def burst():
+        for i in range(1100):
+            enc.send_emcy(0x5000 + i)
+    world.at(T_FAULT, burst)
+    ctl.run(max_cycles=2000)
+    assert ctl.emcy.LOG == 1000 and len(ctl.emcy.log) == 1000
+    assert [e.code for e in ctl.emcy.of_node(enc.node_id)] == [0x5000 + i
+                                                                for i in range(100, 1100)]
+    assert ctl.phase is Phase.STOPPED and world.device("x").state is State.READY_TO_SWITCH_ON
+
+
 def test_following_error_bit_stops(make):
     world, ctl = make()
     world.at(T_FAULT, lambda: world.device("x").disturb(200_000))  # 20 mm push

@@ -297,6 +297,41 @@ def test_trigger_rate_limit_never_aborts(tmp_path):
         assert "more than 100 trigger edges within 1 s" in ev[0].detail
 
 
+def test_a_long_run_keeps_the_last_history_entries_and_counts_all(tmp_path):
+    """Issue 12 (O(1) memory per cycle): a PLC that engages and disengages with every one of
+    1100 accepted trigger edges (one per 6 cycles, 12 ms: within the 100/s limit), then loses
+    its heartbeat and sends 1100 more frames, all refused.  The node's counters count every
+    one; its histories (trigger times and types, engage commands, refusals) hold the newest
+    HISTORY = 1000: the times those of the last 1000 edges, in order."""
+    from controller.canopen.slave.plc import HISTORY
+
+    with cell(tmp_path) as (sim, ctl, node, remote, hb):
+        _running(ctl)
+        cob = 0x200 + NODE
+        edges: list[int] = []
+        for i in range(1100):  # RPDO1: 2005h (engage: off / absolute), 2004h (edge)
+            mode = int(Mode.ABSOLUTE) if i % 2 else int(Mode.OFF)
+            remote.network.send_message(cob, bytes([mode, 0]))
+            remote.network.send_message(cob, bytes([mode, 1]))
+            edges.append(sim.world.clock.now_ns())
+            _steps(ctl, 6)
+        assert (node.triggers, node.triggers_dropped) == (1100, 0)
+        assert len(node.trigger_times) == len(node.trigger_types) == HISTORY == 1000
+        assert list(node.trigger_times) == edges[-HISTORY:]
+        assert len(node.commands) == HISTORY
+        assert [v for _, v in node.commands][-2:] == [int(Mode.OFF), int(Mode.ABSOLUTE)]
+        hb.on = False
+        _steps(ctl, 200)  # (the commander's heartbeat time-out: 300 ms)
+        assert node.refusal() is not None
+        refused0 = node.refused
+        for _ in range(1100):
+            remote.network.send_message(cob, bytes([0, 1]))
+            ctl.step()
+        assert node.refused == refused0 + 2200  # (2005h and 2004h of each frame)
+        assert len(node.refusals) == HISTORY
+        assert ctl.failure is None
+
+
 def _translation(p):
     return p[:3]
 

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import math
 import struct
+from collections import deque
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -144,6 +145,12 @@ class HeartbeatMonitor:
 
 
 class EmcyMonitor:
+    """The EMCYs of the watched nodes: ``queue`` (since the last :meth:`pop_all`, the cycle
+    takes them) and ``log`` (the last :data:`LOG`, for :meth:`of_node`)."""
+
+    #: EMCYs kept in ``log``
+    LOG = 1000
+
     def __init__(self, transport: Transport, hygiene: FrameHygiene | None = None,
                  cfg: ControllerConfig | None = None) -> None:
         self.transport = transport
@@ -152,7 +159,9 @@ class EmcyMonitor:
         self.labels: dict[int, tuple[str, int]] = {}
         self.profiles: dict[int, int | None] = {}
         self.queue: list[Emcy] = []
-        self.log: list[Emcy] = []
+        #: the last LOG EMCYs received (a drive that keeps sending them does not fill the
+        #: memory of a long run - issue 12; the boot's errors name the newest of a node)
+        self.log: deque[Emcy] = deque(maxlen=self.LOG)
 
     def watch(self, cob_id: int, node_id: int, label: str, profile: int | None = None) -> None:
         self.labels[cob_id] = (label, node_id)

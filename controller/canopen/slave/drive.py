@@ -46,6 +46,7 @@ the new 607Ah; update 6041h/6064h/606Ch/60F4h/60FDh; send the TPDOs.
 from __future__ import annotations
 
 import math
+from collections import deque
 from typing import Any
 
 from ..config.simulation import DriveParams
@@ -79,7 +80,8 @@ class SimDrive(SimNode):
         self.v = 0.0  # actual velocity [counts/s]
         self.demand = self.x
         self.state = State.NOT_READY_TO_SWITCH_ON
-        self.transitions: list[tuple[int, State, State]] = []  # (number, from, to)
+        #: the last 1000 402 transitions: (number, from, to) (bounded: sim-devices runs long)
+        self.transitions: deque[tuple[int, State, State]] = deque(maxlen=1000)
         self.error_code = 0
         self.enable_input = True
         self._prev_cw = 0

@@ -48,6 +48,7 @@ from __future__ import annotations
 
 import math
 import struct
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 from enum import IntEnum
@@ -265,7 +266,8 @@ class SlaveEngine:
         self.rpdos: dict[int, PdoChannel] = {}
         self.tpdos: list[PdoChannel] = []
         self._pdo_dirty = True
-        self.emcy_sent: list[tuple[int, int]] = []  # (code, ns)
+        #: the last 1000 EMCYs sent: (code, ns) (a long run's faults do not fill the memory)
+        self.emcy_sent: deque[tuple[int, int]] = deque(maxlen=1000)
         self.sync_counter: int | None = None
         self.sync_cob_id = sync_cob_id
         #: 1007h synchronous window length [ns] (0: none; read with the PDOs)

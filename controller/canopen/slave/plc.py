@@ -80,6 +80,9 @@ MOTION_OBJECTS = frozenset({0x2004, 0x2005, 0x2010, 0x2014, 0x2015})
 #: communication objects a PLC may not write (the bus configuration sets them)
 CONFIG_OWNED = frozenset({0x1005, 0x1006, 0x1014, 0x1015, 0x1016, 0x1017, 0x1019})
 ENGAGE_VALUES = (int(Mode.OFF), int(Mode.ABSOLUTE), int(Mode.RELATIVE))
+#: the entries a :class:`PlcNode` history keeps (trigger times and types, engage commands,
+#: refusals): the newest, the oldest dropped
+HISTORY = 1000
 #: item types 0...ITEM_TYPES - 1, 32 per sub-index of 2015h (sub 1...8)
 ITEM_TYPES = 256
 _TYPE_SUBS = range(1, ITEM_TYPES // 32 + 1)
@@ -218,14 +221,18 @@ class PlcNode(SlaveEngine):
         self.config = config if config is not None else PlcConfig()
         super().__init__("controller", eds, node_id, bus, heartbeat_producer=False,
                          sync_cob_id=None)
-        self.refused = 0
+        # (the node runs as long as the controller: its histories keep the last HISTORY
+        #  entries, the counts count all - issue 12: O(1) memory in long runs)
+        self.refused = 0  # refused motion writes (SDO and RPDO)
         self.triggers = 0  # accepted trigger edges
         self.triggers_dropped = 0  # by the rate limit
-        self.trigger_times: list[int] = []
-        #: the item type (2014h) of the last 1000 accepted edges
-        self.trigger_types: deque[int] = deque(maxlen=1000)
-        self.commands: list[tuple[int, int]] = []  # engage commands applied: (t_ns, value)
-        self.refusals: list[tuple[int, int, int]] = []  # (index, sub, code)
+        #: the time [ns] and the item type (2014h) of the last HISTORY accepted edges
+        self.trigger_times: deque[int] = deque(maxlen=HISTORY)
+        self.trigger_types: deque[int] = deque(maxlen=HISTORY)
+        #: the last HISTORY engage commands applied: (t_ns, value)
+        self.commands: deque[tuple[int, int]] = deque(maxlen=HISTORY)
+        #: the last HISTORY refused writes: (index, sub, SDO abort code)
+        self.refusals: deque[tuple[int, int, int]] = deque(maxlen=HISTORY)
         self._throttle = _Throttle()
         self._rate = TriggerRate(self.config.trigger_rate_max)
         self._rpdo_engage = 0
