@@ -440,12 +440,7 @@ def test_reset_starts_over(tracker_fmu):
     scenario = conveyor_scenario(T)
     with FmuTracker(tracker_fmu, start_values={"planner": 0}) as fmu:
         first = fmu.run(scenario, 300, T)
-        fmu.slave.reset()
-        fmu.slave.setupExperiment(startTime=0.0)
-        fmu.slave.enterInitializationMode()
-        fmu.set({"planner": 0})
-        fmu.slave.exitInitializationMode()
-        fmu.time = 0.0
+        fmu.reset()  # (planner 0 again, time 0)
         again = fmu.run(scenario, 300, T)
     assert again.reals == first.reals and again.ints == first.ints
 

@@ -111,15 +111,7 @@ def test_calls_after_terminate_are_refused(fmu_path):
             assert exc.value.status == 3
             assert "refused: the instance is terminated" in fmu.messages[-1][2]
         assert fmu.outputs() == before
-        fmu.slave.reset()
-        if fmu.fmi3:
-            fmu.slave.enterInitializationMode(startTime=0.0)
-        else:
-            fmu.slave.setupExperiment(startTime=0.0)
-            fmu.slave.enterInitializationMode()
-        fmu.set({"planner": 0})
-        fmu.slave.exitInitializationMode()
-        fmu.time = 0.0
+        fmu.reset()  # (planner 0 again, time 0)
         fmu.run(conveyor_scenario(T), 5, T)
 
 

@@ -197,15 +197,7 @@ def test_reset_reattaches_the_value_list(fmu_path):
     scenario = conveyor_scenario(T, engage_s=0.02, release_s=0.15)
     with FmuTracker(fmu_path, start_values={"planner": 0}, logging_on=False) as fmu:
         first = fmu.run(scenario, 200, T)
-        fmu.slave.reset()
-        if fmu.fmi3:
-            fmu.slave.enterInitializationMode(startTime=0.0)
-        else:
-            fmu.slave.setupExperiment(startTime=0.0)
-            fmu.slave.enterInitializationMode()
-        fmu.set({"planner": 0})
-        fmu.slave.exitInitializationMode()
-        fmu.time = 0.0
+        fmu.reset()  # (planner 0 again, time 0)
         again = fmu.run(scenario, 200, T)
     assert again.reals == first.reals and again.ints == first.ints
     assert {row[1] for row in first.ints} == {0, 1, 3}
@@ -238,12 +230,7 @@ def test_fmi2_step_exception_outside_the_engine_guard_is_an_error(fmu2_path, mon
         with pytest.raises(FMICallException):  # refused by the front now
             fmu.slave.doStep(fmu.time, T)
         assert "refused: an earlier step raised an exception" in fmu.messages[-1][2]
-        fmu.slave.reset()
-        fmu.slave.setupExperiment(startTime=0.0)
-        fmu.slave.enterInitializationMode()
-        fmu.set({"planner": 0})
-        fmu.slave.exitInitializationMode()
-        fmu.time = 0.0
+        fmu.reset()  # (planner 0 again, time 0)
         fmu.run(conveyor_scenario(T), 3, T)
 
 
@@ -272,17 +259,6 @@ def engine_of(fmu):
     return engine
 
 
-def init(fmu):
-    if fmu.fmi3:
-        fmu.slave.enterInitializationMode(startTime=0.0)
-    else:
-        fmu.slave.setupExperiment(startTime=0.0)
-        fmu.slave.enterInitializationMode()
-    fmu.set({"planner": 0})
-    fmu.slave.exitInitializationMode()
-    fmu.time = 0.0
-
-
 def attached(fmu):
     # with the front attached a set input waits in the front until the next step
     engine, vr = engine_of(fmu), fmu.vr["master_x"]
@@ -299,8 +275,7 @@ with FmuTracker(path, start_values={"planner": 0}, logging_on=False) as fmu:
         out["warnings"] = [m[2] for m in fmu.messages if m[0] == 1]
         out["attached"] = attached(fmu)
         out["reals"] = fmu.run(scenario, 200, T).reals
-        fmu.slave.reset()
-        init(fmu)
+        fmu.reset()
         out["attached_after_reset"] = attached(fmu)
         out["again"] = fmu.run(scenario, 200, T).reals
     else:
@@ -323,12 +298,11 @@ with FmuTracker(path, start_values={"planner": 0}, logging_on=False) as fmu:
         out["statuses"] = statuses
         out["messages"] = [[m[0], m[2]] for m in fmu.messages]
         try:
-            fmu.slave.reset()
-        except Exception as exc:  # FMI 3: the wrapper made the step Fatal
+            fmu.reset()
+        except Exception as exc:  # FMI 3: the wrapper made the step Fatal (fmi3Reset fails)
             out["reset"] = str(exc)
             fmu.slave = None  # after Fatal only free (the front does not call the wrapper's)
         else:
-            init(fmu)
             out["after_reset"] = fmu.run(scenario, 200, T).reals
 print("RESULT " + json.dumps(out))
 """

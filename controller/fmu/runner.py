@@ -14,6 +14,7 @@ import shutil
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from ..errors import CantrackError
 from ..tracking import MotionState, Tracker, TrackerParams
@@ -120,7 +121,8 @@ class FmuTracker:
     exitInitializationMode raises ``FmuRunError`` unless ``init_errors`` (then it is kept in
     ``init_error`` and the instance stays, to see what it does next).
     Log messages go to ``self.messages`` as (status, category, message).  ``self.slave`` is
-    the fmpy object; :meth:`get_state` & co. hide the FMI 2 / FMI 3 name differences.
+    the fmpy object; :meth:`get_state` & co. and :meth:`reset` (reset and initialise again)
+    hide the FMI 2 / FMI 3 name differences.
     """
 
     def __init__(self, fmu_path: str | Path, instance_name: str = "tracker",
@@ -143,6 +145,8 @@ class FmuTracker:
         self._engage_vr = [self.vr["engage"]]
         self.slave = None
         self.time = start_time
+        #: the parameter values set in initialisation mode (again by :meth:`reset`)
+        self.start_values = dict(start_values or {})
         try:
             if self.fmi3:
                 self._instantiate3(instance_name, logging_on, start_time)
@@ -200,8 +204,7 @@ class FmuTracker:
         self._set_real, self._set_int = slave.setReal, slave.setInteger
         self._get_real, self._get_int = slave.getReal, slave.getInteger
         slave.instantiate(callbacks=callbacks, loggingOn=logging_on)
-        slave.setupExperiment(startTime=start_time)
-        slave.enterInitializationMode()
+        self._enter_initialization(start_time)
 
     def _instantiate3(self, instance_name: str, logging_on: bool, start_time: float) -> None:
         from fmpy.fmi3 import FMU3Slave
@@ -214,7 +217,41 @@ class FmuTracker:
         self._get_real, self._get_int = slave.getFloat64, slave.getInt32
         slave.instantiate(loggingOn=logging_on, logMessage=(
             lambda _env, status, category, message: self._log(status, category, message)))
-        slave.enterInitializationMode(startTime=start_time)
+        self._enter_initialization(start_time)
+
+    def _instance(self) -> Any:
+        """The fmpy slave (``FMU2Slave`` or ``FMU3Slave``); :class:`FmuRunError` when there
+        is none (closed, or left after a failed instantiation)."""
+        slave: Any = self.slave
+        if slave is None:
+            raise FmuRunError(f"{self.path}: no FMU instance (closed)")
+        return slave
+
+    def _enter_initialization(self, start_time: float) -> None:
+        """Initialisation mode at ``start_time`` [s] (FMI 2: setupExperiment, then
+        enterInitializationMode; FMI 3: enterInitializationMode with the start time)."""
+        slave = self._instance()
+        if self.fmi3:
+            slave.enterInitializationMode(startTime=start_time)
+        else:
+            slave.setupExperiment(startTime=start_time)
+            slave.enterInitializationMode()
+
+    def reset(self, start_values: dict | None = None, start_time: float = 0.0) -> None:
+        """fmi2Reset / fmi3Reset, then initialise the instance again as at instantiation:
+        initialisation mode at ``start_time`` [s] (FMI 2: setupExperiment first), the
+        parameter values ``start_values`` (default: the instance's :attr:`start_values`, those
+        given at instantiation), exitInitializationMode; :attr:`time` = ``start_time``.  A
+        refused call raises fmpy's ``FMICallException`` (a reset refused before anything else
+        is called: FMI 3 after Fatal)."""
+        slave = self._instance()
+        slave.reset()
+        self._enter_initialization(start_time)
+        values = self.start_values if start_values is None else start_values
+        if values:
+            self.set(values)
+        slave.exitInitializationMode()
+        self.time = start_time
 
     def set(self, values: dict) -> None:
         """Set variables by name (Real/Float64, Integer/Int32 or Boolean)."""
