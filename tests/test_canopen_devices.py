@@ -83,15 +83,21 @@ def enable(m: RawMaster, cob: int, target: int, sequence=(0x06, 0x07, 0x0F)) -> 
     m.sync({cob: rpdo(sequence[-1], target)})
 
 
+def enabled_x(world, m: RawMaster, target: int):
+    """Drive x (node 11) in CSP, NMT started and enabled at ``target`` [counts]: the
+    drive."""
+    configure_csp(m)
+    m.nmt(0x01, 11)
+    enable(m, 0x20B, target)
+    return world.device("x")
+
+
 def test_a_drive_keeps_its_last_1000_transitions_and_emcys(bus):
     """Issue 12 (``cantrack sim-devices`` runs as long as the plant): a drive disabled and
     enabled again 400 times (1203 CiA 402 transitions) and 1100 EMCYs sent keep the newest
     1000 of each, in order."""
     world, m = bus
-    configure_csp(m)
-    m.nmt(0x01, 11)
-    drive = world.device("x")
-    enable(m, 0x20B, 0)
+    drive = enabled_x(world, m, 0)
     for _ in range(400):
         for cw in (0x06, 0x07, 0x0F):  # shutdown (8), switch on (3), enable operation (4)
             m.sync({0x20B: rpdo(cw, 0)})
@@ -255,10 +261,7 @@ def test_without_frame_time_a_device_samples_when_it_serves_the_sync(bus):
 
 def test_402_enable_sequence(bus):
     world, m = bus
-    configure_csp(m)
-    m.nmt(0x01, 11)
-    drive = world.device("x")
-    enable(m, 0x20B, 4_000_000)
+    drive = enabled_x(world, m, 4_000_000)
     assert drive.state is State.OPERATION_ENABLED
     assert [n for n, _, _ in drive.transitions] == [1, 2, 3, 4]
     sw = struct.unpack("<Hi", m.of(0x18B)[-1])
@@ -320,10 +323,7 @@ def test_enable_with_stale_target_faults_with_following_error(bus):
 
 def test_quick_stop_ramps_then_switch_on_disabled(bus):
     world, m = bus
-    configure_csp(m)
-    m.nmt(0x01, 11)
-    drive = world.device("x")
-    enable(m, 0x20B, 4_000_000)
+    drive = enabled_x(world, m, 4_000_000)
     target = 4_000_000
     for _ in range(50):  # move at 0.5 m/s (5000 counts per 2 ms)
         target += 5000
@@ -342,10 +342,7 @@ def test_quick_stop_ramps_then_switch_on_disabled(bus):
 
 def test_fault_reset_needs_a_rising_edge(bus):
     world, m = bus
-    configure_csp(m)
-    m.nmt(0x01, 11)
-    drive = world.device("x")
-    enable(m, 0x20B, 4_000_000)
+    drive = enabled_x(world, m, 4_000_000)
     m.sync({0x20B: rpdo(0x80, 4_000_000)})  # bit 7 already high when the fault comes
     m.sync({0x20B: rpdo(0x80, 4_000_000)})  # (an RPDO acts at the next SYNC)
     assert drive.state is State.OPERATION_ENABLED  # 80h alone is no 402 command
@@ -409,10 +406,7 @@ def _enabled_x_drive(tmp_path, **sim_changes):
     world = SimWorld(cfg)
     m = RawMaster(world)
     m.run(10)
-    configure_csp(m)
-    m.nmt(0x01, 11)
-    enable(m, 0x20B, 4_000_000)
-    return world, m, world.device("x")
+    return world, m, enabled_x(world, m, 4_000_000)
 
 
 def test_limit_switches_and_home_on_60fd(tmp_path):
