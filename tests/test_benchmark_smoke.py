@@ -110,3 +110,26 @@ def test_encoder_timing_against_a_baseline_checkout(tmp_path):
                                     f"{res['ratio_baseline']:.2f}"]
     with pytest.raises(SystemExit, match="not a cantrack checkout"):
         enc.timing(bench.timing_cases, 1, 1, baseline=tmp_path, rounds=1)
+
+
+def test_encoder_seeds_matches_the_encoder_benchmark(capsys):
+    """benchmarks/encoder_seeds.py: per seed the kept design's figures of
+    benchmarks/encoder.py for the same belts (one cell, two seeds, one belt per cell), the
+    table with the count of seeds over the bounds; bad --seeds / --cells are refused by
+    name."""
+    enc = pytest.importorskip("benchmarks.encoder")
+    seeds_mod = pytest.importorskip("benchmarks.encoder_seeds")
+    fig = seeds_mod.main(["--seeds", "1-2", "--cells", "50um:2ms", "--belts", "1"])
+    for i, seed in enumerate((1, 2)):
+        cases = [c for c in enc.belt_cases(seed, 1) if (c.count_mm, c.T) == (0.05, 0.002)]
+        f = enc.summarize([enc.run_belt(c, enc.KEPT) for c in cases])[(0.05, 0.002, enc.KEPT)]
+        assert fig[(0.05, 0.002)]["jmax"][i] == f["err_change_jmax_p99"]
+        assert fig[(0.05, 0.002)]["const"][i] == f["err_const"][1]
+    out = capsys.readouterr().out
+    jm = fig[(0.05, 0.002)]["jmax"]
+    assert f"| {sum(x > 0.1 for x in jm)} of 2 |" in out
+    assert seeds_mod._seeds("1-3,7") == [1, 2, 3, 7]
+    with pytest.raises(SystemExit, match="--seeds: 'x' is not a seed"):
+        seeds_mod._seeds("x")
+    with pytest.raises(SystemExit, match="--cells: '5um:2ms' is not a cell"):
+        seeds_mod._cells("5um:2ms")
