@@ -621,6 +621,13 @@ def test_build_from_a_regular_install(tmp_path):
     assert proc.returncode == 0, proc.stdout + proc.stderr
     fmu = tmp_path / "out" / "CanTracker.fmu"
     assert validate_fmu(str(fmu)) == []
+    # the FMU bundles the tracking core's sources, never the install's compiled modules
+    # (docs/architecture.md "Compiled core": the FMU runs in another Python)
+    with zipfile.ZipFile(fmu) as zf:
+        resources = [n for n in zf.namelist() if n.startswith("resources/")]
+    assert [n for n in resources if n.endswith("/tracking/tracker.py")], resources
+    assert not [n for n in resources
+                if n.endswith((".so", ".pyd")) or "mypyc" in n or "_native_manifest" in n]
     with FmuTracker(fmu, start_values={"planner": 0}) as f:
         got = f.run(conveyor_scenario(T), 300, T)
     assert got.reals == core_run(params_for(planner=0), conveyor_scenario(T), 300).reals

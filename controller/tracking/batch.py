@@ -67,6 +67,7 @@ from ..errors import ParameterError, StateError
 from ..limits import Limits
 from .desync import Desync, LinearPath
 from .types import Mode, MotionState, TrackerParams, TrackError, TrackState
+from .values import python_class
 
 __all__ = ["BatchOutput", "BatchTracker", "benchmark"]
 
@@ -136,6 +137,7 @@ def _pysumsq3(x: np.ndarray) -> np.ndarray:
 
 
 # -- output ---------------------------------------------------------------------------------
+@python_class
 @dataclass(frozen=True, slots=True)
 class BatchOutput:
     """One sample of N trackers (arrays are fresh copies, safe to keep).
@@ -522,14 +524,20 @@ class BatchTracker:
     """
 
     def __init__(self, params: Sequence[TrackerParams], initial=None) -> None:
-        params = list(params) if not isinstance(params, TrackerParams) else [params]
-        n = len(params)
+        # (objects until checked: a caller may pass anything)
+        given: list[object] = list(params) if not isinstance(params, TrackerParams) \
+            else [params]
+        n = len(given)
         if n == 0:
             raise ParameterError("params: at least one TrackerParams is needed (got 0)")
-        for i, p in enumerate(params):
-            if not isinstance(p, TrackerParams):
+        checked: list[TrackerParams] = []
+        for i, q in enumerate(given):
+            if not isinstance(q, TrackerParams):
                 raise ParameterError(
-                    f"params[{i}] (={type(p).__name__}) must be a TrackerParams")
+                    f"params[{i}] (={type(q).__name__}) must be a TrackerParams")
+            checked.append(q)
+        params = checked
+        for i, p in enumerate(params):
             if p.planner != "softmc":
                 raise ParameterError(
                     f"batch stepping supports planner 'softmc' only: params[{i}].planner is "

@@ -65,6 +65,7 @@ import numpy as np
 from ..errors import ParameterError
 from ..limits import Limits
 from .types import MotionState, Vec3
+from .values import as_stored, attributes, mypyc_attr, python_class
 
 
 class ConditionerDesign(IntEnum):
@@ -92,6 +93,7 @@ class EventKind(IntEnum):
     JERK_STEP = 4
 
 
+@python_class
 @dataclass(frozen=True, slots=True)
 class ConditioningEvent:
     """Something the shell should report: at ``sample`` (the conditioner's cycle count)."""
@@ -101,6 +103,7 @@ class ConditioningEvent:
     size_mm: float = 0.0
 
 
+@python_class
 @dataclass(frozen=True, slots=True)
 class EncoderModel:
     """What is known about the encoder: count size [mm] and latency [whole cycles].
@@ -116,15 +119,17 @@ class EncoderModel:
     noise_mm: float = 0.0
 
     def __post_init__(self) -> None:
-        if not (math.isfinite(self.resolution_mm) and self.resolution_mm >= 0.0):
-            raise ParameterError(f"resolution_mm (={self.resolution_mm!r}) must be >= 0 mm")
-        if int(self.latency_samples) != self.latency_samples or not 0 <= self.latency_samples <= 100:
+        s = as_stored(self)  # (the values as passed: values.as_stored)
+        if not (math.isfinite(s.resolution_mm) and s.resolution_mm >= 0.0):
+            raise ParameterError(f"resolution_mm (={s.resolution_mm!r}) must be >= 0 mm")
+        if int(s.latency_samples) != s.latency_samples or not 0 <= s.latency_samples <= 100:
             raise ParameterError(
-                f"latency_samples (={self.latency_samples!r}) must be an integer in [0...100]")
-        if not (math.isfinite(self.noise_mm) and self.noise_mm >= 0.0):
-            raise ParameterError(f"noise_mm (={self.noise_mm!r}) must be >= 0 mm")
+                f"latency_samples (={s.latency_samples!r}) must be an integer in [0...100]")
+        if not (math.isfinite(s.noise_mm) and s.noise_mm >= 0.0):
+            raise ParameterError(f"noise_mm (={s.noise_mm!r}) must be >= 0 mm")
 
 
+@python_class
 @dataclass(frozen=True, slots=True)
 class ConditioningParams:
     """Configuration of one :class:`MasterConditioner` (one belt coordinate).
@@ -160,42 +165,43 @@ class ConditioningParams:
     warmup_samples: int | None = None
 
     def __post_init__(self) -> None:
-        if not (math.isfinite(self.sample_time_s) and 1e-5 <= self.sample_time_s <= 0.1):
+        s = as_stored(self)  # (the values as passed: values.as_stored)
+        if not (math.isfinite(s.sample_time_s) and 1e-5 <= s.sample_time_s <= 0.1):
             raise ParameterError(
-                f"sample_time_s (={self.sample_time_s!r}) must be in [1e-05...0.1] s")
+                f"sample_time_s (={s.sample_time_s!r}) must be in [1e-05...0.1] s")
         try:
-            object.__setattr__(self, "design", ConditionerDesign(self.design))
+            object.__setattr__(self, "design", ConditionerDesign(s.design))
         except ValueError:
-            raise ParameterError(f"design (={self.design!r}) must be one of "
+            raise ParameterError(f"design (={s.design!r}) must be one of "
                                  f"{', '.join(d.name.lower() for d in ConditionerDesign)}"
                                  ) from None
-        if not (math.isfinite(self.lead_samples) and 0.0 <= self.lead_samples <= 100.0):
-            raise ParameterError(f"lead_samples (={self.lead_samples!r}) must be in [0...100]")
+        if not (math.isfinite(s.lead_samples) and 0.0 <= s.lead_samples <= 100.0):
+            raise ParameterError(f"lead_samples (={s.lead_samples!r}) must be in [0...100]")
         for name in ("jerk_change_s", "quiet_jerk_change_s"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0.0):
                 raise ParameterError(f"{name} (={v!r}) must be > 0 s")
-        if not (isinstance(self.jerk_step_sigma, (int, float))
-                and math.isfinite(self.jerk_step_sigma) and self.jerk_step_sigma > 0.0):
-            raise ParameterError(f"jerk_step_sigma (={self.jerk_step_sigma!r}) must be > 0")
+        if not (isinstance(s.jerk_step_sigma, (int, float))
+                and math.isfinite(s.jerk_step_sigma) and s.jerk_step_sigma > 0.0):
+            raise ParameterError(f"jerk_step_sigma (={s.jerk_step_sigma!r}) must be > 0")
         for name in ("bandwidth_hz", "output_hz"):
             v = getattr(self, name)
             if v is None:
                 continue
-            if not (math.isfinite(v) and 0.0 < v <= 0.1 / self.sample_time_s):
-                raise ParameterError(f"{name} (={v!r}) must be in (0...{0.1 / self.sample_time_s:g}]"
+            if not (math.isfinite(v) and 0.0 < v <= 0.1 / s.sample_time_s):
+                raise ParameterError(f"{name} (={v!r}) must be in (0...{0.1 / s.sample_time_s:g}]"
                                      f" Hz (a tenth of the sample rate)")
-        if self.outlier_mm is not None and not (math.isfinite(self.outlier_mm)
-                                                and self.outlier_mm > 0.0):
-            raise ParameterError(f"outlier_mm (={self.outlier_mm!r}) must be > 0 mm")
-        if not (math.isfinite(self.jerk_reserve) and 0.0 <= self.jerk_reserve <= 100.0):
-            raise ParameterError(f"jerk_reserve (={self.jerk_reserve!r}) must be in [0...100]")
-        if int(self.max_outliers) != self.max_outliers or self.max_outliers < 1:
-            raise ParameterError(f"max_outliers (={self.max_outliers!r}) must be an integer >= 1")
-        if self.warmup_samples is not None and (int(self.warmup_samples) != self.warmup_samples
-                                                or self.warmup_samples < 3):
+        if s.outlier_mm is not None and not (math.isfinite(s.outlier_mm)
+                                                and s.outlier_mm > 0.0):
+            raise ParameterError(f"outlier_mm (={s.outlier_mm!r}) must be > 0 mm")
+        if not (math.isfinite(s.jerk_reserve) and 0.0 <= s.jerk_reserve <= 100.0):
+            raise ParameterError(f"jerk_reserve (={s.jerk_reserve!r}) must be in [0...100]")
+        if int(s.max_outliers) != s.max_outliers or s.max_outliers < 1:
+            raise ParameterError(f"max_outliers (={s.max_outliers!r}) must be an integer >= 1")
+        if s.warmup_samples is not None and (int(s.warmup_samples) != s.warmup_samples
+                                                or s.warmup_samples < 3):
             raise ParameterError(
-                f"warmup_samples (={self.warmup_samples!r}) must be an integer >= 3")
+                f"warmup_samples (={s.warmup_samples!r}) must be an integer >= 3")
 
     @property
     def gate_mm(self) -> float:
@@ -458,6 +464,7 @@ def output_pole(P: np.ndarray, w_max: float, authority: float) -> float:
     return max(lo, 1e-3 * w_max)
 
 
+@mypyc_attr(allow_interpreted_subclasses=True)  # (copyable: snapshots, FMU states)
 class MasterConditioner:
     """Raw belt positions (one per cycle) -> conditioned belt motion at the setpoint time.
 
@@ -528,12 +535,13 @@ class MasterConditioner:
         self.reset()
 
     def __getstate__(self):
-        d = self.__dict__.copy()
+        d = attributes(self)
         d["_otg"] = None  # Ruckig objects cannot be pickled: rebuilt when needed
         return d
 
     def __setstate__(self, d) -> None:
-        self.__dict__.update(d)
+        for name, value in d.items():
+            setattr(self, name, value)
 
     def reset(self) -> None:
         """Forget the belt (the next sample starts the warm-up)."""

@@ -24,9 +24,11 @@ import math
 from dataclasses import dataclass
 from typing import Protocol
 
+from .values import mypyc_attr, python_class
 from .vec import Vec
 
 
+@python_class
 @dataclass(frozen=True, slots=True)
 class _Segment:
     """One piece of the stop profile, starting at time t0 with path state (s0, v0)."""
@@ -51,6 +53,7 @@ class _Segment:
         return pos, vel, acc
 
 
+@mypyc_attr(allow_interpreted_subclasses=True)  # (copyable: snapshots, FMU states)
 class SineStop:
     """A 1-D stop: path coordinate s from (0, v0, a0) to rest, sine-acceleration ramps.
 
@@ -147,6 +150,7 @@ class DesyncPath(Protocol):
         ...
 
 
+@python_class
 @dataclass(frozen=True, slots=True)
 class LinearPath:
     """p = origin + direction*s (docs/spec/tracking.md#5.1)."""
@@ -161,6 +165,7 @@ class LinearPath:
 
 
 @dataclass
+@mypyc_attr(allow_interpreted_subclasses=True)  # (copyable: snapshots, FMU states)
 class Desync:
     """A stop on a path, evaluated per sample: ``state(t)`` for t seconds since disengage."""
 

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .values import fast_init
+from .values import fast_init, mypyc_attr
 
 
 @fast_init
@@ -93,6 +93,7 @@ def _fit_sums(wp: tuple[float, ...], wv: tuple[float, ...], wa: tuple[float, ...
     return fit
 
 
+@mypyc_attr(allow_interpreted_subclasses=True)  # (copyable: snapshots, FMU states)
 class MasterEstimator:
     """Least-squares quadratic fit over a sliding window, predicted ``lead_samples`` ahead.
 

@@ -30,6 +30,7 @@ import math
 from typing import Any
 
 from ..limits import Limits
+from .values import attributes, mypyc_attr
 from .vec import Vec
 
 _ZERO3 = (0.0, 0.0, 0.0)
@@ -62,6 +63,7 @@ def rest_target_solver(n: int) -> tuple[Any, Any, Any]:
     inp.target_acceleration = zero
     return Ruckig(n), inp, Trajectory(n)
 
+@mypyc_attr(allow_interpreted_subclasses=True)  # (copyable: snapshots, FMU states)
 class SyncFollower:
     """Follow one channel's master within its sync ``limits`` (see the module docstring)."""
 
@@ -80,13 +82,14 @@ class SyncFollower:
         self.n_closing = 0
 
     def __getstate__(self):
-        d = self.__dict__.copy()
+        d = attributes(self)
         d["_rk"] = d["_inp"] = d["_traj"] = None
         d["n"] = 0
         return d
 
     def __setstate__(self, d) -> None:
-        self.__dict__.update(d)
+        for name, value in d.items():
+            setattr(self, name, value)
         if "_c" not in d:  # a state saved before the constants were cached
             self._constants()
 

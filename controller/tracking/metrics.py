@@ -26,6 +26,7 @@ import numpy as np
 
 from ..limits import Limits
 from .types import TrackState
+from .values import mypyc_attr
 
 PHASES = ("approach", "switch", "after", "desync")
 QUANTITIES = ("vel", "acc", "jerk")
@@ -34,6 +35,7 @@ VEL_TOL = 2.0
 
 
 @dataclass
+@mypyc_attr(allow_interpreted_subclasses=True)  # (copyable: snapshots, FMU states)
 class TraceMetrics:
     """Figures of one run.  Norms in mm/s, mm/s^2, mm/s^3; times in s."""
 

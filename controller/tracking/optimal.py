@@ -152,17 +152,20 @@ the limits), shifted by the current master velocity only, made again every sampl
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 from ruckig import ControlInterface, InputParameter, Ruckig, Trajectory
 
 from ..limits import Limits
 from .follow import rest_target_solver
+from .values import attributes, mypyc_attr, python_class
 from .vec import Vec
 
 #: rows (u1, u2, u3) of a rotation R (q = R e); None stands for the world axes
 Basis = tuple[Vec, Vec, Vec]
-#: velocity and acceleration weights per axis (w_v, w_a)
-Weights = tuple[Vec, Vec]
+#: velocity and acceleration weights per axis (w_v, w_a): tuples or lists (the search makes
+#: lists), read by index only
+Weights = tuple[Sequence[float], Sequence[float]]
 
 #: lengths (mm or deg) -> Ruckig units (m or kdeg): Ruckig needs SI-like magnitudes
 _S = 1e-3
@@ -212,6 +215,7 @@ _TRACK = 0  #: a tracking plan: every axis to e = 0
 _FALLBACK = 1  #: world-frame velocity control towards the master's velocity
 
 
+@python_class  # (its state: __getstate__/__setstate__ of its __dict__/__slots__)
 class _Plan:
     """A stored plan: its Ruckig inputs (scaled, plain floats), basis and master model."""
 
@@ -263,6 +267,7 @@ class _Plan:
             setattr(self, name, value)
 
 
+@mypyc_attr(allow_interpreted_subclasses=True)  # (copyable: snapshots, FMU states)
 class _Frame:
     """The relative problem in one basis: e0 (scaled lists; empty in the fallback's frame,
     which never plans from it), master v/a and robot v/a."""
@@ -323,6 +328,7 @@ def _candidate_bases(mbv: Vec, ma: Vec, e0w: tuple) -> list:
     return out
 
 
+@mypyc_attr(allow_interpreted_subclasses=True)  # (copyable: snapshots, FMU states)
 class OptimalPlanner:
     """Time-optimal, vector-norm-safe approach of one channel (see the module docstring).
 
@@ -386,12 +392,13 @@ class OptimalPlanner:
         self._rk, self._inp, self._traj = rest_target_solver(self.n)
 
     def __getstate__(self):
-        d = self.__dict__.copy()
+        d = attributes(self)
         d["_rk"] = d["_inp"] = d["_traj"] = None
         return d
 
     def __setstate__(self, d) -> None:
-        self.__dict__.update(d)
+        for name, value in d.items():
+            setattr(self, name, value)
         if "_cont" not in d:  # a state saved before the continuity test (eq. 6.3)
             self._continuity()
             self._mprev = None

@@ -22,9 +22,11 @@ from __future__ import annotations
 
 from collections import deque
 
+from .values import mypyc_attr
 from .vec import Vec, dot, norm
 
 
+@mypyc_attr(allow_interpreted_subclasses=True)  # (copyable: snapshots, FMU states)
 class OscillationMonitor:
     """Counts large velocity-error sign flips; ``update()`` returns True on over-oscillation."""
 

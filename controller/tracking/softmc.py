@@ -46,6 +46,7 @@ import math
 
 from ..limits import Limits
 from .types import SoftMcOptions
+from .values import mypyc_attr
 from .vec import Vec
 
 
@@ -65,6 +66,7 @@ def time_to_reach(pos_diff: float, vel_diff: float, master_speed: float, robot_s
     return sample_time_s * int(D / sample_time_s + 1.0)
 
 
+@mypyc_attr(allow_interpreted_subclasses=True)  # (copyable: snapshots, FMU states)
 class SoftMcPlanner:
     """One channel of the softMC approach.  ``reset()`` at engage, ``step()`` every sample."""
 

@@ -37,6 +37,7 @@ from .oscillation import OscillationMonitor
 from .planner import ChannelPlanner, planner_factory
 from .types import (Imfs, Mode, MotionState, SyncFollow, TrackError, TrackerOutput,
                     TrackerParams, TrackState)
+from .values import attributes, mypyc_attr
 from .vec import Vec, vec3
 
 #: Builds the de-sync stops (translation, rotation) for a tracker about to de-sync, or returns
@@ -55,6 +56,8 @@ assert [int(s) for s in TrackState] == [0, 1, 2, 3]
 
 
 
+# (subclassed by controller.conveyor.tracker.ConveyorTracker; copied by snapshot())
+@mypyc_attr(allow_interpreted_subclasses=True)
 class Tracker:
     """One tracker.  ``engage()`` / ``disengage()`` take effect at the next ``update()``."""
 
@@ -137,6 +140,14 @@ class Tracker:
     @property
     def imfs(self) -> Imfs:
         return _IMFS[self.state]
+
+    def __getstate__(self) -> dict:
+        # (the compiled class's own state omits a Python subclass's attributes)
+        return attributes(self)
+
+    def __setstate__(self, state: dict) -> None:
+        for name, value in state.items():
+            setattr(self, name, value)
 
     def snapshot(self) -> "Tracker":
         """A deep copy of the whole tracker (for FMU state save/restore and what-if runs)."""

@@ -13,7 +13,7 @@ import math
 from dataclasses import dataclass, field, replace
 from enum import IntEnum
 
-from .values import fast_init
+from .values import as_stored, fast_init, python_class
 from ..errors import ParameterError
 from ..limits import Limits
 
@@ -66,6 +66,7 @@ class TrackError(IntEnum):
     MASTER_LOST = 6  #: master samples stopped arriving (controller shell)
 
 
+@python_class
 @dataclass(frozen=True, slots=True)
 class Rates:
     """softMC rate overrides in percent (VRATE, ARATE, DRATE, JRATE), 0 < rate <= 100.
@@ -89,6 +90,7 @@ class Rates:
                 raise ParameterError(f"rate {name} (={value!r}) must be in (0...100] percent")
 
 
+@python_class
 @dataclass(frozen=True, slots=True)
 class SoftMcOptions:
     """Fixes to the published softMC algorithm, each a named switch (default: the working
@@ -148,6 +150,7 @@ DEFAULT_ROT = Limits(360.0, 3600.0, 72000.0)
 MAX_FACTOR = 1000.0
 
 
+@python_class
 @dataclass(frozen=True, slots=True)
 class TrackerParams:
     """Everything that configures one tracker (one robot group on one moving frame).
@@ -200,46 +203,47 @@ class TrackerParams:
     synced_follow: SyncFollow | None = None
 
     def __post_init__(self) -> None:
+        s = as_stored(self)  # (the values as passed: values.as_stored)
         # docs/spec/tracking.md#2.5: the sync/de-sync values start at the robot's maxima
-        for name, robot, builtin in (("sync_trans", self.robot_max_trans, DEFAULT_TRANS),
-                                     ("desync_trans", self.robot_max_trans, DEFAULT_TRANS),
-                                     ("sync_rot", self.robot_max_rot, DEFAULT_ROT),
-                                     ("desync_rot", self.robot_max_rot, DEFAULT_ROT)):
+        for name, robot, builtin in (("sync_trans", s.robot_max_trans, DEFAULT_TRANS),
+                                     ("desync_trans", s.robot_max_trans, DEFAULT_TRANS),
+                                     ("sync_rot", s.robot_max_rot, DEFAULT_ROT),
+                                     ("desync_rot", s.robot_max_rot, DEFAULT_ROT)):
             if getattr(self, name) is None:
                 object.__setattr__(self, name, robot if robot is not None else builtin)
-        if not (math.isfinite(self.sample_time_s) and 1e-5 <= self.sample_time_s <= 0.1):
+        if not (math.isfinite(s.sample_time_s) and 1e-5 <= s.sample_time_s <= 0.1):
             raise ParameterError(
-                f"sample_time_s (={self.sample_time_s!r}) must be in [1e-05...0.1] s")
-        follow = self.synced_follow
+                f"sample_time_s (={s.sample_time_s!r}) must be in [1e-05...0.1] s")
+        follow = s.synced_follow
         if follow is None:
-            follow = SyncFollow.COPY if self.planner == "softmc" else SyncFollow.LIMITED
+            follow = SyncFollow.COPY if s.planner == "softmc" else SyncFollow.LIMITED
         try:
             object.__setattr__(self, "synced_follow", SyncFollow(follow))
         except ValueError:
-            raise ParameterError(f"synced_follow (={self.synced_follow!r}) must be 0 (copy) or "
+            raise ParameterError(f"synced_follow (={s.synced_follow!r}) must be 0 (copy) or "
                                  f"1 (limited)") from None
         try:
-            object.__setattr__(self, "mode", Mode(self.mode))
+            object.__setattr__(self, "mode", Mode(s.mode))
         except ValueError:
             raise ParameterError(
-                f"mode (={self.mode!r}) must be 3 (absolute) or 5 (relative)") from None
-        if self.mode == Mode.OFF:
+                f"mode (={s.mode!r}) must be 3 (absolute) or 5 (relative)") from None
+        if s.mode == Mode.OFF:
             raise ParameterError("mode (=0) must be 3 (absolute) or 5 (relative)")
         # (<= MAX_FACTOR: beyond it the softmc thresholds and time-to-reach overflow to
         #  inf/NaN; DampingFactor 1..10 is the useful range)
-        if not (0 < self.filter_factor <= MAX_FACTOR):
-            raise ParameterError(f"filter_factor (={self.filter_factor!r}) must be > 0 "
+        if not (0 < s.filter_factor <= MAX_FACTOR):
+            raise ParameterError(f"filter_factor (={s.filter_factor!r}) must be > 0 "
                                  f"and <= {MAX_FACTOR:g}")
-        if not (0 < self.damping_factor <= MAX_FACTOR):
-            raise ParameterError(f"damping_factor (={self.damping_factor!r}) must be > 0 "
+        if not (0 < s.damping_factor <= MAX_FACTOR):
+            raise ParameterError(f"damping_factor (={s.damping_factor!r}) must be > 0 "
                                  f"and <= {MAX_FACTOR:g}")
-        if int(self.max_flops) != self.max_flops or self.max_flops < 1:
-            raise ParameterError(f"max_flops (={self.max_flops!r}) must be an integer >= 1")
-        if not self.max_flops_time_s > 0:
-            raise ParameterError(f"max_flops_time_s (={self.max_flops_time_s!r}) must be > 0")
-        if not self.approach_timeout_s > 0:
+        if int(s.max_flops) != s.max_flops or s.max_flops < 1:
+            raise ParameterError(f"max_flops (={s.max_flops!r}) must be an integer >= 1")
+        if not s.max_flops_time_s > 0:
+            raise ParameterError(f"max_flops_time_s (={s.max_flops_time_s!r}) must be > 0")
+        if not s.approach_timeout_s > 0:
             raise ParameterError(
-                f"approach_timeout_s (={self.approach_timeout_s!r}) must be > 0")
+                f"approach_timeout_s (={s.approach_timeout_s!r}) must be > 0")
 
     def with_(self, **changes) -> "TrackerParams":
         """A copy with some fields changed (validated again)."""
@@ -265,6 +269,7 @@ class TrackerParams:
         )
 
 
+@python_class
 @dataclass(frozen=True, slots=True)
 class EffectiveLimits:
     """The limits a tracker runs with: each channel's sync and de-sync :class:`Limits` after

@@ -16,9 +16,49 @@ from __future__ import annotations
 import dataclasses
 import inspect
 import types
-from typing import TypeVar
+from typing import Any, Callable, TypeVar
 
 T = TypeVar("T")
+
+try:
+    from mypy_extensions import mypyc_attr
+except ImportError:  # (without mypy: the pure source, e.g. bundled in an FMU; only mypyc reads it)
+    def mypyc_attr(*attrs: str, **kwattrs: Any) -> Callable[[T], T]:  # type: ignore[misc]
+        return lambda x: x
+
+
+def as_stored(obj: object) -> Any:
+    """``obj`` typed ``Any``: its attributes read as they are stored.  For the validators in
+    ``__post_init__``, which see what the caller passed before converting or refusing it (an
+    ``int`` for a ``Mode`` field, ``1.5`` for an ``int`` one): compiled code checks a read of
+    a typed field against its annotation (and turns an ``int`` read as ``float`` into a
+    float), reads through ``Any`` are Python's (docs/architecture.md "Compiled core")."""
+    return obj
+
+
+def attributes(obj: object) -> dict[str, Any]:
+    """The instance attributes of ``obj`` by name, for ``__getstate__``: its ``__dict__``
+    (a copy) in the pure source; the attributes a compiled class lists in
+    ``__mypyc_attrs__`` (it has no ``__dict__``) that are set, and the ``__dict__`` of a
+    Python subclass of it.  ``__setstate__`` sets them
+    back with ``setattr``, which works for both."""
+    names = [n for klass in type(obj).__mro__ for n in getattr(klass, "__mypyc_attrs__", ())]
+    state = {n: getattr(obj, n) for n in dict.fromkeys(names)
+             if not n.startswith("__") and hasattr(obj, n)}
+    # (a Python subclass of a compiled class has both)
+    state.update(getattr(obj, "__dict__", {}))
+    return state
+
+
+def python_class(cls: type[T]) -> type[T]:
+    """Mark ``cls`` as a plain Python class for the compiled core (docs/architecture.md
+    "Compiled core"): mypyc compiles its methods but keeps the class itself a Python class,
+    so it behaves exactly as in the pure source: a frozen dataclass copies and pickles as
+    usual, and its fields take what ``__post_init__`` converts and validates (an ``int``
+    for a ``Mode``, ``6.0`` for an ``int``) without mypyc's type checks on assignment.  For
+    the parameter and event values, made rarely.  (mypyc makes any class with a decorator it
+    does not know a Python class; this one returns ``cls`` unchanged.)"""
+    return cls
 
 
 def fast_init(cls: type[T]) -> type[T]:
@@ -56,4 +96,4 @@ def fast_init(cls: type[T]) -> type[T]:
     return cls
 
 
-__all__ = ["fast_init"]
+__all__ = ["as_stored", "attributes", "fast_init", "mypyc_attr", "python_class"]

@@ -1,0 +1,148 @@
+"""The compiled tracking core (docs/architecture.md "Compiled core").
+
+- compiled and pure give byte-identical results: a stepped ``cantrack demo`` (bus.log,
+  telemetry, summary) and the simulator's traces of examples, each run in a subprocess with
+  ``CANTRACK_PURE=1`` and one without;
+- ``CANTRACK_PURE=1`` runs every module of ``controller.tracking`` from its source;
+- the stale build guard: a source edited after the build runs as source, with one warning
+  naming the file.
+
+Where the install did not compile the core (no C compiler at ``pip install`` time, or
+``CANTRACK_NO_EXTENSIONS=1``) the tests that need the compiled modules are skipped; in CI
+(``CI=true``: .ci/run installs gcc before the project) they fail instead.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+import controller
+
+ROOT = Path(__file__).resolve().parents[1]
+PACKAGE = Path(controller.__file__).resolve().parent
+EXTENSION_SUFFIXES = (".so", ".pyd")
+
+#: prints NATIVE and, per submodule of controller.tracking, where it was loaded from
+PROBE = ("import json, sys, controller.tracking as t\n"
+         "from controller.tracking import (batch, conditioning, desync, estimator, follow,\n"
+         "    metrics, optimal, oscillation, planner, softmc, tracker, types, values, vec)\n"
+         "mods = {k: m.__file__ for k, m in sorted(sys.modules.items())\n"
+         "        if k.startswith('controller.tracking.') and not k.endswith('__mypyc')}\n"
+         "print(json.dumps({'native': t.NATIVE, 'modules': mods}))\n")
+
+
+def _env(pure: bool, **extra: str) -> dict[str, str]:
+    env = {k: v for k, v in os.environ.items() if k != "CANTRACK_PURE"}
+    if pure:
+        env["CANTRACK_PURE"] = "1"
+    env.update(extra)
+    return env
+
+
+def _python(args: list[str], pure: bool, cwd: Path | None = None,
+            **extra: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, *args], capture_output=True, text=True, cwd=cwd,
+                          env=_env(pure, **extra), timeout=300)
+
+
+def _probe(pure: bool, cwd: Path = ROOT, **extra: str) -> tuple[dict, str]:
+    r = _python(["-c", PROBE], pure, cwd=cwd, **extra)
+    assert r.returncode == 0, r.stderr
+    return json.loads(r.stdout.splitlines()[-1]), r.stderr
+
+
+@pytest.fixture(scope="module")
+def native() -> None:
+    """Skip (fail in CI) unless this install runs the compiled core."""
+    probe, _ = _probe(pure=False)
+    if not probe["native"]:
+        message = ("the tracking core is not compiled in this install (pip install -e . "
+                   "needs a C compiler and the Python headers; CANTRACK_NO_EXTENSIONS unset)")
+        if os.environ.get("CI") == "true":
+            pytest.fail("CI: " + message)
+        pytest.skip(message)
+
+
+def test_pure_is_honoured(native):
+    probe, stderr = _probe(pure=True)
+    assert probe["native"] is False
+    assert len(probe["modules"]) == 14
+    assert all(f.endswith(".py") for f in probe["modules"].values()), probe["modules"]
+    assert stderr == ""
+
+
+def test_the_compiled_modules_run_by_default(native):
+    probe, stderr = _probe(pure=False)
+    assert probe["native"] is True
+    assert len(probe["modules"]) == 14
+    pure_only = {"controller.tracking.batch", "controller.tracking.metrics"}  # (setup.py)
+    assert all(f.endswith(EXTENSION_SUFFIXES) == (name not in pure_only)
+               for name, f in probe["modules"].items()), probe["modules"]
+    assert stderr == ""
+
+
+def _demo(out: Path, pure: bool) -> tuple[bytes, list[dict], list[str]]:
+    r = _python(["-m", "controller.cli", "demo", "-q", "--items", "3", "-o", str(out)], pure)
+    assert r.returncode == 0, r.stderr
+    lines = [json.loads(line) for line in (out / "telemetry.jsonl").read_text().splitlines()]
+    assert lines[-1]["type"] == "end"
+    del lines[-1]["wall_s"]  # (the one wall-clock figure)
+    assert "items placed 3, missed 0, of 3" in r.stdout
+    summary = [re.sub(r" in [0-9.]+ s wall \([0-9.]+x real time\)", "", line)
+               for line in r.stdout.splitlines() if not line.startswith("files:")]
+    return (out / "bus.log").read_bytes(), lines, summary
+
+
+def test_compiled_and_pure_demo_are_identical(native, tmp_path):
+    """The stepped demo: the same frames on the bus, the same telemetry and summary."""
+    compiled = _demo(tmp_path / "compiled", pure=False)
+    pure = _demo(tmp_path / "pure", pure=True)
+    assert compiled[0] == pure[0]
+    assert compiled[1] == pure[1]
+    assert compiled[2] == pure[2]
+
+
+@pytest.mark.parametrize("scenario", [
+    "linear_absolute.yaml", "relative_mode.yaml", "accelerating_optimal.yaml",
+    "encoder_conditioned.yaml", "conveyor_rotary.yaml", "cell_handoff.yaml"])
+def test_compiled_and_pure_simulator_traces_are_identical(native, tmp_path, scenario):
+    traces = []
+    for pure in (False, True):
+        out = tmp_path / f"{'pure' if pure else 'compiled'}.csv"
+        r = _python(["-m", "controller.cli", "simulate", str(ROOT / "examples" / scenario),
+                     "-q", "-o", str(out)], pure)
+        assert r.returncode == 0, r.stderr
+        traces.append(out.read_bytes())
+    assert traces[0] == traces[1]
+    assert len(traces[0]) > 1000
+
+
+def test_a_source_changed_after_the_build_runs_as_source(native, tmp_path):
+    """The stale build guard: copy the compiled package, edit one source: that import runs
+    the pure package and warns once, naming the file; the unedited copy runs compiled."""
+    copy = tmp_path / "site" / "controller"
+    shutil.copytree(PACKAGE, copy, ignore=shutil.ignore_patterns("__pycache__"))
+    tracking = copy / "tracking"
+    assert (tracking / "_native_manifest.json").is_file()
+    site = str(tmp_path / "site")
+    probe, stderr = _probe(pure=False, cwd=tmp_path, PYTHONPATH=site)
+    assert probe["native"] is True, stderr
+    assert all(f.startswith(site) for f in probe["modules"].values())
+
+    edited = tracking / "vec.py"
+    edited.write_text(edited.read_text() + "\n# edited after the build\n")
+    probe, stderr = _probe(pure=False, cwd=tmp_path, PYTHONPATH=site)
+    assert probe["native"] is False
+    assert all(f.startswith(site) and f.endswith(".py") for f in probe["modules"].values())
+    warnings = [line for line in stderr.splitlines() if "RuntimeWarning" in line]
+    assert len(warnings) == 1, stderr
+    assert f"{edited}: changed since the tracking core was compiled" in warnings[0]
+    assert "rebuild with pip install -e ." in warnings[0]
