@@ -9,7 +9,7 @@ docs/spec/master-conditioning.md#5.3.  Per cell (count size q x cycle T) the enc
 benchmark's belt at JerkMax (``benchmarks/encoder.py``, the same seed, the same encoder
 stream: sampling instants, glitches, missing samples) is belt A.  For each jerk step of A
 (at theta_e) an alternative belt B_e = A + d is built by a linear program over d's jerk,
-piecewise constant on a grid of step h:
+piecewise constant on a grid of step h (2 ms, or T/2 if longer):
 
 - B_e is physically possible: its jerk within +-JerkMax, its acceleration within
   +-AccelerationMax (its speed is checked within VelocityMax), it equals A before
@@ -29,16 +29,18 @@ Any causal estimator gives the same estimate on A and B_e at every cycle k <= k*
 err_A(k) + err_B(k) >= g_k = |d(t_sp(k))|.  Over the S-curve samples S (N cycles; the
 benchmark's "S-curve" set: setpoint time within a speed change or 0.25 s after it, from the
 engage + 50 ms on), with r = ceil(N/100) + 1: if blocks of m_e cycles (disjoint, between
-consecutive steps) with gaps > 2X are found for E' steps and sum m_e >= (E' + 1)(r - 1) + 1,
-then A and the B_e cannot all have fewer than r samples of S with an error > X (A's bad
-samples within the blocks plus each B_e's cover every block sample).  Hence, proved:
+consecutive steps) with gaps >= 2X are found for E' steps and sum m_e >= (E' + 1)(r - 1) + 1,
+then A and the B_e cannot all have fewer than r samples of S with an error >= X (every
+block cycle is bad for A or for its B_e; A has at most r - 1 of them).  Hence, proved:
 
     for any causal estimator, on at least one of the belts A, B_1 .. B_E' (all physically
     possible, each with the benchmark's data model), at least r of the N S-curve samples
-    (more than 1 %) have a following error > X  -- its p99 (numpy, linear) is >= X.
+    (more than 1 %) have a following error >= X  -- its p99 (numpy, linear) is >= X.
 
 X is the largest such value found.  Also printed: the single-sample bound max_k g_k / 2
-(for one cycle: max(err_A, err_B) >= g/2 there).  Pure arithmetic plus scipy's HiGHS LP
+(for one cycle: max(err_A, err_B) >= g/2 there), and the ceiling of every such argument,
+``spread_bound`` (eq. 5.3): how far apart ANY two belts within JerkMax with the same counts
+can be at the setpoint time, halved -- what a set-membership estimate achieves.  Pure arithmetic plus scipy's HiGHS LP
 (a benchmark-only dependency).
 """
 
@@ -317,7 +319,8 @@ def cell_bound(belt: Belt, enc: EncoderSim, T: float, n_cycles: int, k_from: int
     x, used, m = p99_bound(steps, r)
     single = max((float(s.single.gap_mm[0]) / 2.0 for s in steps if s.single is not None),
                  default=0.0)
-    valid = ~np.isnan(stream.position_mm)
+    # glitched samples identified (the gate, docs/spec/master-conditioning.md#3.1): not nodes
+    valid = ~np.isnan(stream.position_mm) & (stream.glitch_mm == 0.0)
     spread = max(spread_bound(t_s, valid, int(kk), float(t_sp[kk]), enc.resolution_mm,
                               frame.jerk) for kk in k[in_s])
     return {"n_samples": n_s, "r": r, "steps": len(thetas), "x_mm": x, "steps_used": used,
