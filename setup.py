@@ -5,7 +5,7 @@ but ``PURE_ONLY``) with mypyc: the same source, checked by mypy and turned into 
 modules, about 1.6x faster in the cycle's hot path.  Everything else (metadata, packages,
 package data) is in pyproject.toml.
 
-- ``CANTRACK_NO_EXTENSIONS=1`` skips the compile: the pure package is installed (and, for an
+- ``CANTRACK_NO_EXTENSIONS=1`` (anything but "", "0", "false", "no", "off") skips the compile: the pure package is installed (and, for an
   editable install, the in-place build an earlier one left is removed, so that it cannot run
   instead).
 - A compile that fails (no C compiler or Python headers, mypyc missing or refusing the
@@ -114,6 +114,9 @@ class BuildExt(build_ext):
         return super().get_outputs() if self.extensions else []
 
 
+#: the values of CANTRACK_NO_EXTENSIONS that mean "off" (any case)
+OFF = ("", "0", "false", "no", "off")
+
 #: the setup.py commands that build (pip's metadata steps, egg_info and dist_info, do not:
 #: mypyc's translation, some 20 s, runs once per install)
 BUILDS = {"build", "build_ext", "bdist_wheel", "editable_wheel", "develop", "install"}
@@ -123,7 +126,8 @@ def _extensions() -> list:
     if not BUILDS & set(sys.argv[1:]):
         return []
     editable = "editable_wheel" in sys.argv or "develop" in sys.argv
-    if os.environ.get("CANTRACK_NO_EXTENSIONS", "") not in ("", "0"):
+    # (a boolean as controller/tracking/__init__.py reads CANTRACK_PURE)
+    if os.environ.get("CANTRACK_NO_EXTENSIONS", "").strip().lower() not in OFF:
         print("cantrack: CANTRACK_NO_EXTENSIONS set: the tracking core is not compiled",
               file=sys.stderr)
         if editable:

@@ -12,10 +12,11 @@ exported here too because ``TrackerParams`` takes it.
 
 Compiled core (docs/architecture.md "Compiled core"): the install compiles this package's
 modules with mypyc where it can (setup.py).  ``NATIVE`` tells whether the compiled modules are
-the ones running; ``CANTRACK_PURE=1`` in the environment forces the Python source.  The build
-records the hash of each compiled source (``_native_manifest.json``): a source changed since
-(an editable checkout edited after ``pip install -e .``) makes the package run the Python
-source, with one warning naming the file, instead of the old compiled code.
+the ones running (all of them); ``CANTRACK_PURE`` set to anything but "", "0", "false", "no"
+or "off" forces the Python source.  The build records the hash of each compiled source
+(``_native_manifest.json``): a source changed or deleted since (an editable checkout edited
+after ``pip install -e .``), or a compiled file missing, makes the package run the Python
+source, with one warning naming the file, instead of the old (or half a) compiled build.
 """
 
 import hashlib as _hashlib
@@ -27,9 +28,29 @@ import sys as _sys
 import warnings as _warnings
 
 
+#: the values of CANTRACK_PURE (and setup.py's CANTRACK_NO_EXTENSIONS) that mean "off"
+_OFF = ("", "0", "false", "no", "off")
+
+
+def _flag(name: str) -> bool:
+    """The environment variable ``name`` as a boolean: unset, "", "0", "false", "no", "off"
+    (any case, surrounding blanks ignored) are off, anything else on."""
+    return _os.environ.get(name, "").strip().lower() not in _OFF
+
+
+def _compiled_file(directory: str, stem: str) -> "str | None":
+    """The extension module ``stem`` (``tracker``, ``_core__mypyc``) in ``directory``, or None."""
+    for suffix in _machinery.EXTENSION_SUFFIXES:
+        path = _os.path.join(directory, stem + suffix)
+        if _os.path.isfile(path):
+            return path
+    return None
+
+
 class _PureFinder:
     """Meta-path finder: the submodules of this package from their ``.py`` source (never a
-    compiled extension module beside it)."""
+    compiled extension module beside it: a module whose source is missing but whose compiled
+    module is there is an ImportError naming both, not the compiled one loaded silently)."""
 
     def __init__(self, package: str, directory: str) -> None:
         self.prefix = package + "."
@@ -39,42 +60,66 @@ class _PureFinder:
         if not fullname.startswith(self.prefix):
             return None
         name = fullname[len(self.prefix):]
+        if "." in name:
+            return None
         source = _os.path.join(self.directory, name + ".py")
-        if "." in name or not _os.path.isfile(source):
+        if not _os.path.isfile(source):
+            compiled = _compiled_file(self.directory, name)
+            if compiled is not None:
+                raise ImportError(
+                    f"{source}: missing, and the tracking core runs its Python source: "
+                    f"not loading the compiled {compiled} instead (restore the source, or "
+                    f"rebuild with pip install -e .)", name=fullname, path=compiled)
             return None
         return _util.spec_from_file_location(
             fullname, source, loader=_machinery.SourceFileLoader(fullname, source))
 
 
-def _stale_source(directory: str) -> "str | None":
-    """The first compiled module whose source differs from the build's manifest (or that has
-    no compiled module), or None when the build matches the sources; "" without a build."""
+def _read_manifest(directory: str) -> "dict[str, str] | None":
+    """The build's manifest (compiled source name -> SHA-256), or None without a build."""
     try:
         with open(_os.path.join(directory, "_native_manifest.json"), encoding="utf-8") as f:
             recorded = _json.load(f)["sources"]
     except (OSError, ValueError, KeyError, TypeError):
+        return None
+    return recorded if isinstance(recorded, dict) else None
+
+
+def _stale_source(directory: str) -> "str | None":
+    """Why the build cannot run, as a file and what is wrong with it: a compiled module's
+    source that differs from the build's manifest or is missing, the group's shared library
+    or a module's compiled file missing; None when the build matches the sources; "" without a
+    build."""
+    recorded = _read_manifest(directory)
+    if recorded is None:
         return ""
+    if _compiled_file(directory, "_core__mypyc") is None:
+        return (f"{_os.path.join(directory, '_core__mypyc')}.*.so: missing (the compiled "
+                f"modules' shared library)")
     for name, digest in sorted(recorded.items()):
         source = _os.path.join(directory, name)
+        stem = name[:-3] if name.endswith(".py") else name
+        if _compiled_file(directory, stem) is None:
+            return f"{_os.path.join(directory, stem)}.*.so: missing (compiled from {name})"
         try:
             with open(source, "rb") as f:
                 if _hashlib.sha256(f.read()).hexdigest() != digest:
-                    return source
+                    return f"{source}: changed since the tracking core was compiled"
         except OSError:
-            return source
+            return f"{source}: missing (deleted since the tracking core was compiled)"
     return None
 
 
 def _choose() -> str:
     """"pure" (forced), "stale" (a changed source: pure) or "auto" (the finders' choice)."""
-    if _os.environ.get("CANTRACK_PURE", "") not in ("", "0"):
+    if _flag("CANTRACK_PURE"):
         return "pure"
     directory = _os.path.dirname(__file__)
     stale = _stale_source(directory)
     if stale:
         _warnings.warn(
-            f"{stale}: changed since the tracking core was compiled: running the Python "
-            f"source instead (rebuild with pip install -e .)", RuntimeWarning, stacklevel=3)
+            f"{stale}: running the Python source instead (rebuild with pip install -e .)",
+            RuntimeWarning, stacklevel=3)
         return "stale"
     return "auto"
 
@@ -90,10 +135,29 @@ from .tracker import Tracker  # noqa: E402
 from ..limits import Limits  # noqa: E402
 from .types import (Imfs, Mode, MotionState, Rates, SoftMcOptions, TrackError,  # noqa: E402
                     TrackerOutput, TrackerParams, TrackState)
-from . import tracker as _tracker_module  # noqa: E402
 
-#: True when the compiled (mypyc) modules run, False for the Python source
-NATIVE: bool = not str(getattr(_tracker_module, "__file__", "")).endswith(".py")
+
+def _native() -> bool:
+    """Whether every module the build compiled runs compiled (its loaded or would-be-loaded
+    file is not its ``.py``); False without a build or in pure mode."""
+    recorded = _read_manifest(_os.path.dirname(__file__))
+    if _MODE != "auto" or not recorded:
+        return False
+    for name in recorded:
+        stem = name[:-3] if name.endswith(".py") else name
+        module = _sys.modules.get(f"{__name__}.{stem}")
+        if module is not None:
+            origin = getattr(module, "__file__", None)
+        else:
+            spec = _util.find_spec(f"{__name__}.{stem}")
+            origin = spec.origin if spec is not None else None
+        if not origin or str(origin).endswith(".py"):
+            return False
+    return True
+
+
+#: True when the compiled (mypyc) modules run (all of them), False for the Python source
+NATIVE: bool = _native()
 
 __all__ = [
     "Imfs", "Limits", "MasterEstimate", "MasterEstimator", "Mode", "MotionState", "NATIVE",

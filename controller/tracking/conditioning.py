@@ -58,7 +58,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from enum import IntEnum
-from typing import Any, NamedTuple
+from typing import Any, NamedTuple, SupportsFloat
 
 import numpy as np
 
@@ -125,6 +125,8 @@ class EncoderModel:
         if int(s.latency_samples) != s.latency_samples or not 0 <= s.latency_samples <= 100:
             raise ParameterError(
                 f"latency_samples (={s.latency_samples!r}) must be an integer in [0...100]")
+        # (stored as the int it equals: compiled code reads the field as an int)
+        object.__setattr__(self, "latency_samples", int(s.latency_samples))
         if not (math.isfinite(s.noise_mm) and s.noise_mm >= 0.0):
             raise ParameterError(f"noise_mm (={s.noise_mm!r}) must be >= 0 mm")
 
@@ -202,6 +204,10 @@ class ConditioningParams:
                                                 or s.warmup_samples < 3):
             raise ParameterError(
                 f"warmup_samples (={s.warmup_samples!r}) must be an integer >= 3")
+        # (stored as the ints they equal: compiled code reads the fields as ints)
+        object.__setattr__(self, "max_outliers", int(s.max_outliers))
+        if s.warmup_samples is not None:
+            object.__setattr__(self, "warmup_samples", int(s.warmup_samples))
 
     @property
     def gate_mm(self) -> float:
@@ -702,12 +708,15 @@ class MasterConditioner:
         return d[0]
 
     # -- the cyclic call ----------------------------------------------------------------
-    def update(self, position_mm: float | None, time_offset_s: float = 0.0) -> ConditionedMaster:
+    def update(self, position_mm: SupportsFloat | None,
+               time_offset_s: float = 0.0) -> ConditionedMaster:
         """One cycle.  Returns the conditioned belt at this cycle's setpoint time."""
+        # (any real number: numpy's scalars as Python floats, the same in both modes)
+        pos_mm = None if position_mm is None else float(position_mm)
         k = self.k
         self.k = k + 1
         T = self.T
-        if (position_mm is not None and self._n >= self._warmup and not self.lost
+        if (pos_mm is not None and self._n >= self._warmup and not self.lost
                 and self._y is not None and self._kinematic_design):
             # the steady state, inlined (eq. 2.4, 3.1, 4.1): predict, gate, correct, output
             tx = self._tx
@@ -719,7 +728,7 @@ class MasterConditioner:
             p += v * dt + a * h * 0.5 + j * h * dt / 6.0
             v += a * dt + j * h * 0.5
             a += j * dt
-            innov = position_mm - p
+            innov = pos_mm - p
             ta = self._t_acc
             da = (kx - ta[0]) * T + (off - ta[1])
             gate = self._gate + self._J6 * da * da * da
@@ -729,7 +738,7 @@ class MasterConditioner:
                 s = self._lam * self._s + self._lam1 * innov
                 if s > g[4] or -s > g[4]:
                     # a jerk step (eq. 2.8): the revised belt, its jump taken by the output
-                    jump = self._jerk_step(position_mm, (kx, off), (p, v, a, j), innov)
+                    jump = self._jerk_step(pos_mm, (kx, off), (p, v, a, j), innov)
                     self._bad = 0
                     self._n += 1
                     self.n_accepted += 1
@@ -746,7 +755,7 @@ class MasterConditioner:
                 self._n += 1
                 self.n_accepted += 1
                 hist = self._hist
-                hist.append((kx, off, position_mm, self._x, i))
+                hist.append((kx, off, pos_mm, self._x, i))
                 if len(hist) > 2 * self._nwin:
                     del hist[:self._nwin]
                 # the output law (eq. 4.1), from the estimate at the step's start (lead - 1)
@@ -779,19 +788,19 @@ class MasterConditioner:
                 return ConditionedMaster(p, v, a, self._yj, MasterStatus.OK, None)
         event = None
         status = MasterStatus.OK
-        if self.lost and position_mm is not None:
+        if self.lost and pos_mm is not None:
             self._x = None  # start again from this sample
             self._n = 0
             self._i = len(self._sched) - 1
             self._s = 0.0
             self.lost = False
-        if position_mm is None:
+        if pos_mm is None:
             self.n_missing += 1
             status = MasterStatus.COASTING
         elif not self.lost:
             ts = (k - self._latency, float(time_offset_s))
             was_ready = self._n >= self._warmup
-            kind, innov = self._measure(float(position_mm), ts)
+            kind, innov = self._measure(float(pos_mm), ts)
             if kind is None or kind == EventKind.JERK_STEP:
                 self.n_accepted += 1
                 if kind is not None:

@@ -29,7 +29,7 @@ from __future__ import annotations
 
 import copy
 import math
-from typing import Callable
+from typing import Any, Callable, cast
 
 from .desync import Desync
 from .follow import SyncFollower
@@ -112,24 +112,26 @@ class Tracker:
         self.desync_count = 0
 
     # -- commands -------------------------------------------------------------------
-    def engage(self, mode: Mode | int | None = None) -> None:
-        """Start synchronising at the next update (``mode`` 3 absolute / 5 relative)."""
+    def engage(self, mode: object = None) -> None:
+        """Start synchronising at the next update (``mode`` 3 absolute / 5 relative: a
+        :class:`Mode` or any integer, e.g. a numpy one; ``None``: the params' mode)."""
         if mode is not None:
-            m = Mode(mode)
+            m = Mode(cast(Any, mode))  # (what Mode takes: a Mode, an int, numpy's ints)
             if m == Mode.OFF:
                 self.disengage()
                 return
             self._request_mode = m
         self._request = "engage"
 
-    def disengage(self, error: TrackError = TrackError.NONE) -> None:
+    def disengage(self, error: object = TrackError.NONE) -> None:
         """Start the de-sync at the next update (``slave = 0``).
 
         ``error``: the reason when a shell stops the tracking for one (e.g.
-        ``TrackError.MASTER_LOST`` when the encoder falls silent); reported like the core's own.
+        ``TrackError.MASTER_LOST`` when the encoder falls silent, or its int value); reported
+        like the core's own.
         """
         self._request = "disengage"
-        self._request_error = TrackError(error)
+        self._request_error = TrackError(cast(Any, error))
 
     def set_robot_state(self, state: MotionState) -> None:
         """Set the robot state while OFF (the setpoint another motion source produced)."""

@@ -12,6 +12,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field, replace
 from enum import IntEnum
+from typing import Any
 
 from .values import as_stored, fast_init, python_class
 from ..errors import ParameterError
@@ -132,12 +133,25 @@ class SoftMcOptions:
     #: False: its conveyor overview's "position error < 1/2*A*T^2", velocity threshold g*A*T
     unit_consistent_thresholds: bool = True
 
+    def __post_init__(self) -> None:
+        # the switches stored as bools (a 0 or 1 given means what it does in an ``if``):
+        # compiled code reads them as bools (docs/architecture.md "Compiled core")
+        s = as_stored(self)
+        for name in _SOFTMC_SWITCHES:
+            object.__setattr__(self, name, bool(getattr(s, name)))
+
     @classmethod
     def literal(cls) -> "SoftMcOptions":
         """The softMC algorithm exactly as published (for regression tests and comparison)."""
         return cls(time_to_reach_k=(4.0, 2.0), pred_acc_from_master=False, init_increments_from_state=False,
                    end_of_sample_feedback=False, braking_distance_velocity=False,
                    take_the_middle=True, unit_consistent_thresholds=True)
+
+
+#: the bool fields of :class:`SoftMcOptions`
+_SOFTMC_SWITCHES = ("directional_k", "pred_acc_from_master", "init_increments_from_state",
+                    "end_of_sample_feedback", "braking_distance_velocity", "take_the_middle",
+                    "unit_consistent_thresholds")
 
 
 #: sync/de-sync limits when neither they nor the robot's maxima are given
@@ -239,6 +253,11 @@ class TrackerParams:
                                  f"and <= {MAX_FACTOR:g}")
         if int(s.max_flops) != s.max_flops or s.max_flops < 1:
             raise ParameterError(f"max_flops (={s.max_flops!r}) must be an integer >= 1")
+        # (stored as the int / bool they stand for: compiled code reads the fields by their
+        #  annotations, docs/architecture.md "Compiled core")
+        object.__setattr__(self, "max_flops", int(s.max_flops))
+        object.__setattr__(self, "desync_from_current_acceleration",
+                           bool(s.desync_from_current_acceleration))
         if not s.max_flops_time_s > 0:
             raise ParameterError(f"max_flops_time_s (={s.max_flops_time_s!r}) must be > 0")
         if not s.approach_timeout_s > 0:
@@ -282,6 +301,12 @@ class EffectiveLimits:
     desync_rot: Limits
 
 
+def _vec3(v: Any) -> Vec3:
+    """A 3-vector given as any sequence (list, numpy array) as a tuple of floats."""
+    x, y, z = v
+    return (float(x), float(y), float(z))
+
+
 @fast_init
 @dataclass(frozen=True, slots=True)
 class MotionState:
@@ -302,6 +327,19 @@ class MotionState:
     ang_acc: float = 0.0
     jerk: Vec3 = ZERO3
     ang_jerk: float = 0.0
+
+    def __post_init__(self) -> None:
+        # a list or numpy array for a vector: stored as a tuple of floats (the compiled core
+        # reads the fields as tuple[float, float, float]); tuples are kept as given
+        s = as_stored(self)
+        if type(s.pos) is not tuple:
+            object.__setattr__(self, "pos", _vec3(s.pos))
+        if type(s.vel) is not tuple:
+            object.__setattr__(self, "vel", _vec3(s.vel))
+        if type(s.acc) is not tuple:
+            object.__setattr__(self, "acc", _vec3(s.acc))
+        if type(s.jerk) is not tuple:
+            object.__setattr__(self, "jerk", _vec3(s.jerk))
 
     @classmethod
     def at(cls, x: float = 0.0, y: float = 0.0, z: float = 0.0, c: float = 0.0) -> "MotionState":
