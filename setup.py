@@ -5,11 +5,14 @@ but ``PURE_ONLY``) with mypyc: the same source, checked by mypy and turned into 
 modules, about 1.6x faster in the cycle's hot path.  Everything else (metadata, packages,
 package data) is in pyproject.toml.
 
-- ``CANTRACK_NO_EXTENSIONS=1`` (anything but "", "0", "false", "no", "off") skips the compile: the pure package is installed (and, for an
-  editable install, the in-place build an earlier one left is removed, so that it cannot run
-  instead).
+- ``CANTRACK_NO_EXTENSIONS=1`` (a boolean: unset, "", "0", "false", "no", "off" are off)
+  skips the compile: the pure package is installed (and, for an editable install, the
+  in-place build an earlier one left is removed, so that it cannot run instead).
 - A compile that fails (no C compiler or Python headers, mypyc missing or refusing the
   source) is not a failed install: the pure package is installed and a warning says why.
+  (mypy itself is a [build-system] requirement, installed before this file runs: offline
+  without it an isolated build fails whatever CANTRACK_NO_EXTENSIONS says; use
+  ``pip install --no-build-isolation``, docs/architecture.md "Compiled core".)
 - The build records the SHA-256 of each compiled source in ``controller/tracking/
   _native_manifest.json``; at import the package runs the compiled modules only while every
   source still has its recorded hash (controller/tracking/__init__.py: the stale build guard).
