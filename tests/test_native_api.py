@@ -117,26 +117,39 @@ def test_engage_with_a_numpy_int(mode) -> None:
 
 
 @pytest.mark.parametrize("planner", ["optimal", "softmc"])
-@pytest.mark.parametrize("kind", ["list", "array"])
+@pytest.mark.parametrize("kind", ["list", "array", "numpy-tuple", "float32-tuple"])
 def test_vectors_as_lists_and_arrays(planner: str, kind: str) -> None:
-    conv = list if kind == "list" else np.array
+    conv = {"list": list, "array": np.array,
+            "numpy-tuple": lambda v: tuple(np.array(v)),
+            "float32-tuple": lambda v: tuple(np.array(v, dtype=np.float32))}[kind]
     p = TrackerParams(sample_time_s=T, planner=planner)
 
     def master(k: int) -> MotionState:
         s = _belt(k)
         return MotionState(conv(s.pos), conv(s.vel), conv(s.acc), jerk=conv(s.jerk))
 
+    def plain(k: int) -> MotionState:  # the same numbers as Python floats
+        s = _belt(k)
+        f = lambda v: tuple(float(x) for x in conv(v))  # noqa: E731
+        return MotionState(f(s.pos), f(s.vel), f(s.acc), jerk=f(s.jerk))
+
     m = master(3)
     for v in (m.pos, m.vel, m.acc, m.jerk):
         assert type(v) is tuple and all(type(x) is float for x in v)
-    assert m == _belt(3)
+    assert m == plain(3)
     init = MotionState(conv([100.0, -50.0, 0.0]))
-    assert _run(p, master=master, init=init) == _run(p)
+    assert _run(p, master=master, init=init) == _run(p, master=plain)
 
 
-def test_vectors_of_the_wrong_length_refused() -> None:
-    with pytest.raises(ValueError):
-        MotionState([1.0, 2.0])
+@pytest.mark.parametrize("bad", [[1.0, 2.0], (1.0, 2.0, 3.0, 4.0), "abc", 5.0])
+def test_vectors_of_the_wrong_shape_refused(bad) -> None:
+    with pytest.raises(ValueError, match="MotionState pos"):
+        MotionState(bad)
+
+
+def test_vectors_of_python_numbers_kept_as_given() -> None:
+    p = (1, 2.0, 3)
+    assert MotionState(p).pos is p
 
 
 @pytest.mark.parametrize("scalar", [np.float64, np.float32, np.int64])

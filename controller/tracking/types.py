@@ -301,10 +301,24 @@ class EffectiveLimits:
     desync_rot: Limits
 
 
-def _vec3(v: Any) -> Vec3:
-    """A 3-vector given as any sequence (list, numpy array) as a tuple of floats."""
+def _plain3(v: Any) -> bool:
+    """Whether ``v`` is a tuple of 3 Python floats or ints (what the compiled core reads as a
+    ``Vec3`` without a TypeError)."""
+    if type(v) is not tuple or len(v) != 3:
+        return False
     x, y, z = v
-    return (float(x), float(y), float(z))
+    return ((type(x) is float or type(x) is int) and (type(y) is float or type(y) is int)
+            and (type(z) is float or type(z) is int))
+
+
+def _vec3(name: str, v: Any) -> Vec3:
+    """The 3-vector ``name`` given as any sequence of 3 numbers (list, numpy array, tuple of
+    numpy scalars) as a tuple of Python floats."""
+    try:
+        x, y, z = v
+        return (float(x), float(y), float(z))
+    except (TypeError, ValueError):
+        raise ParameterError(f"MotionState {name} (={v!r}) must be 3 numbers") from None
 
 
 @fast_init
@@ -329,17 +343,18 @@ class MotionState:
     ang_jerk: float = 0.0
 
     def __post_init__(self) -> None:
-        # a list or numpy array for a vector: stored as a tuple of floats (the compiled core
-        # reads the fields as tuple[float, float, float]); tuples are kept as given
+        # a list, a numpy array or a tuple of numpy scalars for a vector: stored as a tuple
+        # of floats (the compiled core reads the fields as tuple[float, float, float]);
+        # tuples of Python floats and ints are kept as given
         s = as_stored(self)
-        if type(s.pos) is not tuple:
-            object.__setattr__(self, "pos", _vec3(s.pos))
-        if type(s.vel) is not tuple:
-            object.__setattr__(self, "vel", _vec3(s.vel))
-        if type(s.acc) is not tuple:
-            object.__setattr__(self, "acc", _vec3(s.acc))
-        if type(s.jerk) is not tuple:
-            object.__setattr__(self, "jerk", _vec3(s.jerk))
+        if not _plain3(s.pos):
+            object.__setattr__(self, "pos", _vec3("pos", s.pos))
+        if not _plain3(s.vel):
+            object.__setattr__(self, "vel", _vec3("vel", s.vel))
+        if not _plain3(s.acc):
+            object.__setattr__(self, "acc", _vec3("acc", s.acc))
+        if not _plain3(s.jerk):
+            object.__setattr__(self, "jerk", _vec3("jerk", s.jerk))
 
     @classmethod
     def at(cls, x: float = 0.0, y: float = 0.0, z: float = 0.0, c: float = 0.0) -> "MotionState":
