@@ -66,10 +66,11 @@ def _sources() -> list[Path]:
     return sorted(p for p in TRACKING.glob("*.py") if p.name not in PURE_ONLY)
 
 
-def _remove_inplace_build() -> None:
-    """The compiled files and the manifest an earlier in-place (editable) build left."""
-    for path in list(TRACKING.glob("*.so")) + list(TRACKING.glob("*.pyd")) + \
-            [TRACKING / MANIFEST]:
+def _remove_build(directory: Path = TRACKING) -> None:
+    """The compiled files and the manifest a build left in ``directory`` (by default the
+    checkout's, which an earlier in-place (editable) build left)."""
+    for path in list(directory.glob("*.so")) + list(directory.glob("*.pyd")) + \
+            [directory / MANIFEST]:
         if path.exists():
             path.unlink()
 
@@ -94,24 +95,22 @@ class BuildExt(build_ext):
             _warn(f"compiling the tracking core failed ({type(exc).__name__}: {exc})")
             self._drop_outputs()
             return
-        targets = {Path(self.build_lib) / "controller" / "tracking"}
-        if self.inplace or getattr(self, "editable_mode", False):
-            targets.add(TRACKING)
-        for target in targets:
+        for target in self._output_dirs():
             _write_manifest(target)
+
+    def _output_dirs(self) -> set[Path]:
+        """Where this build puts the compiled modules: the build tree, and the checkout for
+        an in-place (editable) build."""
+        directories = {Path(self.build_lib) / "controller" / "tracking"}
+        if self.inplace or getattr(self, "editable_mode", False):
+            directories.add(TRACKING)
+        return directories
 
     def _drop_outputs(self) -> None:
         """No half build: a shim without its shared library would fail at import."""
         self.extensions = []
-        directories = {Path(self.build_lib) / "controller" / "tracking"}
-        if self.inplace or getattr(self, "editable_mode", False):
-            directories.add(TRACKING)
-        for directory in directories:
-            for path in list(directory.glob("*.so")) + list(directory.glob("*.pyd")):
-                path.unlink()
-            manifest = directory / MANIFEST
-            if manifest.exists():
-                manifest.unlink()
+        for directory in self._output_dirs():
+            _remove_build(directory)
 
     def get_outputs(self) -> list[str]:
         return super().get_outputs() if self.extensions else []
@@ -134,11 +133,11 @@ def _extensions() -> list:
         print("cantrack: CANTRACK_NO_EXTENSIONS set: the tracking core is not compiled",
               file=sys.stderr)
         if editable:
-            _remove_inplace_build()  # (a regular build leaves the checkout's alone)
+            _remove_build()  # (a regular build leaves the checkout's alone)
         return []
     extensions = _mypycify()
     if not extensions and editable:
-        _remove_inplace_build()  # (an older in-place build must not run instead)
+        _remove_build()  # (an older in-place build must not run instead)
     return extensions
 
 
