@@ -768,8 +768,7 @@ def run_in_vm(argv: Sequence[str], timeout_s: float = 120.0, env: Mapping[str, s
     try:
         proc.wait(timeout=max(0.0, whole - (time.monotonic() - boot.started)))
     except subprocess.TimeoutExpired:
-        proc.kill()
-        proc.wait()
+        _kill(proc)
         raise VmTimeoutError(
             f"VM still running after {whole:.0f} s (command limit {timeout_s:.0f} s + boot "
             f"{boot_timeout_s:.0f} s): qemu killed; scratch "
@@ -777,9 +776,7 @@ def run_in_vm(argv: Sequence[str], timeout_s: float = 120.0, env: Mapping[str, s
             f"--- stderr (tail) ---\n{_read(jd / 'stderr')[-2000:]}",
             console=_read(console_path), scratch_dir=scratch) from None
     finally:
-        if proc.poll() is None:   # KeyboardInterrupt etc.: never leave a VM behind
-            proc.kill()
-            proc.wait()
+        _kill(proc)   # KeyboardInterrupt etc.: never leave a VM behind
     wall = time.monotonic() - m0
     console = _read(console_path)
     rc_file = jd / "rc"
