@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..canopen.apps.cell import CellSource, end_summary, format_cell_table
+from ..canopen.apps.cell import CellSource, finish_telemetry, format_cell_table
 from ..canopen.apps.report import Telemetry, status_line, summary_table
 from ..canopen.config import ControllerConfig
 from ..canopen.io.canbus import StopSignals
@@ -114,10 +114,8 @@ def run_cell_demo(args: argparse.Namespace, cfg: ControllerConfig) -> int:
             end, error = "error", f"{type(exc).__name__}: {exc}"
             raise
         finally:
-            for robot, rec in app.unfinished():   # (as the demo: the items still pending)
-                tel.cell_item(robot, rec)
-            tel.close(end, error, extra={
-                **end_summary(app), "wall_s": time.perf_counter() - wall0})
+            tel.close(end, error, extra={   # (as the demo: the items still pending first)
+                **finish_telemetry(tel, app), "wall_s": time.perf_counter() - wall0})
     wall = time.perf_counter() - wall0
     status.close()
     if not args.no_plot and app.recorded:

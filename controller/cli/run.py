@@ -42,7 +42,7 @@ import time
 from collections import deque
 from collections.abc import Callable
 
-from ..canopen.apps.cell import CellSource, end_summary, format_cell_table
+from ..canopen.apps.cell import CellSource, finish_telemetry, format_cell_table
 from ..canopen.apps.report import Telemetry, status_line, summary_table, timing_summary
 from ..canopen.config import load_config
 from ..canopen.config.busload import check_bus_load
@@ -349,14 +349,12 @@ def main(argv: list[str] | None = None, prog: str = "cantrack run") -> int:
 
     def close_telemetry(end: str, error: str | None, code: int) -> None:
         # every exit alike (as cantrack demo's cell run): a cell's items still pending, then
-        # the end line with the exit code and the cell's end_summary
+        # the end line with the exit code and the cell's end extras (finish_telemetry)
         if not telemetry:
             return
         extra: dict = {"exit_code": code}
         if isinstance(app, CellSource):
-            for robot, rec in app.unfinished():
-                telemetry[0].cell_item(robot, rec)
-            extra.update(end_summary(app))
+            extra.update(finish_telemetry(telemetry[0], app))
         telemetry[0].close(end, error, extra=extra)
 
     end, error, code = "duration", None, 0

@@ -48,6 +48,7 @@ from collections import deque
 from collections.abc import Callable
 from itertools import islice
 from dataclasses import dataclass, field, replace
+from typing import TYPE_CHECKING
 
 from ...cell.run import CellRun, HeldSource
 from ...cell.scenario import CellRobotSpec, SensorSpec
@@ -73,6 +74,9 @@ from ..master.source import (
     Trigger,
     TrackTypes,
 )
+
+if TYPE_CHECKING:
+    from .report import Telemetry
 
 __all__ = ["CellSource", "RobotSummary", "end_summary", "format_cell_table", "frame_counts"]
 
@@ -538,6 +542,15 @@ def _state(loc: Location, c_deg: float) -> MotionState:
     """The machine pose of a robot location [mm] with tool angle ``c_deg`` [deg]."""
     p = loc.pos
     return MotionState.at(p[0], p[1], p[2], c_deg)
+
+
+def finish_telemetry(tel: Telemetry, src: CellSource) -> dict[str, dict]:
+    """The end of a cell run's telemetry, however it ends (``cantrack demo`` and ``cantrack
+    run`` alike): the items still pending written, then the end line's extras
+    (:func:`end_summary`) returned for ``tel.close``."""
+    for robot, rec in src.unfinished():
+        tel.cell_item(robot, rec)
+    return end_summary(src)
 
 
 def end_summary(src: CellSource) -> dict[str, dict]:
