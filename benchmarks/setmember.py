@@ -64,8 +64,6 @@ EPS_MM = 1e-4
 _U = 0.01
 #: the triples of the last samples tried
 TRI_MAX = 20000
-#: the "law" mode's pole multiplier (--pole)
-POLE_MULT = 2.0
 
 
 class SetMember:
@@ -167,9 +165,18 @@ def triple_range(t: list[float], z: list[float], t_s: float, q_mm: float, jerk: 
     return float(np.max(c - r)), float(np.min(c + r))
 
 
-def _all_triples(m: int) -> np.ndarray:
+def _all_triples(m: int, newest: int | None = None) -> np.ndarray:
+    """The index triples of ``m`` samples (those whose newest index is among the newest
+    ``newest``, or all)."""
     import itertools
-    return np.array(list(itertools.combinations(range(m), 3)))
+    first = 0 if newest is None else m - newest
+    return np.array([t for t in itertools.combinations(range(m), 3) if t[2] >= first])
+
+
+def _estimate_age_s(c: MasterConditioner, t_s: float, T: float) -> float:
+    """``t_s`` minus the instant of the conditioner's estimate [s] (its time stamp: a
+    cycle index and an offset)."""
+    return t_s - (c._tx[0] * T + c._tx[1])
 
 
 def study_belt(case: eb.BeltCase, window_s: float, margin: float, shrink: float) -> dict:
@@ -203,7 +210,7 @@ def study_belt(case: eb.BeltCase, window_s: float, margin: float, shrink: float)
             continue
         lo, hi = r[0], r[1]
         xs = cond._x
-        dt = t_sp[k] - ((cond._tx[0]) * T + cond._tx[1])
+        dt = _estimate_age_s(cond, t_sp[k], T)
         pk = cond._predict(xs, dt)[0]
         res["kept"][k] = o.pos - truth[k]
         res["kalman"][k] = pk - truth[k]
@@ -261,10 +268,7 @@ class SetClipInput:
 
     def triples(self, m: int) -> np.ndarray:
         if m not in self.cache:
-            import itertools
-            tri = np.array([t for t in itertools.combinations(range(m), 3)
-                            if t[2] >= m - self.newest])
-            self.cache[m] = tri
+            self.cache[m] = _all_triples(m, self.newest)
         return self.cache[m]
 
     def update(self, x: float | None, off: float):
@@ -286,7 +290,7 @@ class SetClipInput:
         if self.mode == "est":
             # the estimate's position at t_sp projected into the shrunk set (its state
             # shifted at its own instant), the output clipped into the whole set
-            dt = (k + 1) * self.T - (c._tx[0] * self.T + c._tx[1])
+            dt = _estimate_age_s(c, (k + 1) * self.T, self.T)
             pe = c._predict(c._x, dt)[0]
             d = min(max(pe, lo + w), hi - w) - pe
             if d:
@@ -304,7 +308,7 @@ class SetClipInput:
                 self.n_clip += 1
                 d = (lo if p < lo else hi) - p
                 T = self.T
-                dt = (k + 1) * T - (c._tx[0] * T + c._tx[1]) - T
+                dt = _estimate_age_s(c, (k + 1) * T, T) - T
                 pe, ve, ae, je = c._predict(c._x, dt)
                 yp, yv, ya = y_prev
                 w = c._gains[0] / 3.0 * self.pole_mult
@@ -322,7 +326,7 @@ class SetClipInput:
             pc = lo if p < lo else hi
             self.n_clip += 1
             if self.mode in ("kalman", "est", "kalmanj"):  # the estimate's v, a at t_sp
-                dt = (k + 1) * self.T - (c._tx[0] * self.T + c._tx[1])
+                dt = _estimate_age_s(c, (k + 1) * self.T, self.T)
                 _, v, a, je = c._predict(c._x, dt)
                 if self.mode == "kalmanj":  # and its jerk
                     c._yj = je
@@ -332,7 +336,7 @@ class SetClipInput:
 
 
 def harness(seeds: list[int], cells: list, window_s: float, shrink: float, newest: int,
-            mode: str) -> None:
+            mode: str, pole_mult: float = 2.0) -> None:
     """The encoder benchmark's run_belt with SetClipInput ("setclip") beside the kept
     design, per seed and cell: S-curve-at-JerkMax p99, constant-speed p99, worst after-sync
     norm ratio, outliers / glitches, clips per 1000 cycles."""
@@ -340,7 +344,7 @@ def harness(seeds: list[int], cells: list, window_s: float, shrink: float, newes
 
     def make(name: str, case: eb.BeltCase):
         if name == "setclip":
-            made.append(SetClipInput(case, window_s, shrink, newest, mode, POLE_MULT))
+            made.append(SetClipInput(case, window_s, shrink, newest, mode, pole_mult))
             return made[-1]
         return orig(name, case)
 
@@ -396,11 +400,10 @@ def main(argv: list[str] | None = None) -> None:
                          "estimate's (kalman)")
     ap.add_argument("--pole", type=float, default=2.0, help="law mode: pole multiplier")
     args = ap.parse_args(argv)
-    global POLE_MULT
-    POLE_MULT = args.pole
     cells = _cells(args.cells)
     if args.harness:
-        harness(_seeds(args.seeds), cells, args.window, args.shrink, args.newest, args.mode)
+        harness(_seeds(args.seeds), cells, args.window, args.shrink, args.newest, args.mode,
+                args.pole)
         return
     belts = [int(b) for b in args.belts.split(",")]
     keys = KEYS
