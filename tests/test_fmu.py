@@ -486,6 +486,26 @@ def test_invalid_fixed_parameter_is_logged_and_every_step_refused(tracker_fmu, c
     assert any("sample_time=0.5 s" in r.getMessage() for r in caplog.records)
 
 
+def test_reset_initialises_again_and_clears_the_init_error(tracker_fmu):
+    """``FmuTracker.reset`` initialises afresh: a refused initialisation's ``init_error``
+    goes with a reset whose parameters are accepted (the instance then steps as the core),
+    and a reset whose parameters are refused keeps its own error when ``init_errors``."""
+    scenario = conveyor_scenario(T)
+    with FmuTracker(tracker_fmu, start_values={"sample_time": 0.5},
+                    init_errors=True) as fmu:
+        assert fmu.init_error is not None and fmu.init_error.status == 3
+        fmu.reset(start_values={"sample_time": T, "planner": 0})
+        assert fmu.init_error is None
+        got = fmu.run(scenario, 200, T)
+        assert got.reals == core_run(params_for(planner=0), scenario, 200).reals
+        fmu.reset(start_values={"sample_time": 0.5})
+        assert fmu.init_error is not None and fmu.init_error.status == 3
+        assert "sample_time=0.5 s" in fmu.messages[-1][2]
+    with FmuTracker(tracker_fmu, start_values={"planner": 0}) as fmu:
+        with pytest.raises(FMICallException):  # (without init_errors: raised, as at start)
+            fmu.reset(start_values={"sample_time": 0.5})
+
+
 def test_unusable_serialized_state_is_refused_without_crash(tracker_fmu):
     with FmuTracker(tracker_fmu, start_values={"planner": 0}) as fmu:
         state = fmu.slave.deSerializeFMUstate(b"not a pickled state")

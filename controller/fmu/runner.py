@@ -145,6 +145,12 @@ class FmuTracker:
         self._engage_vr = [self.vr["engage"]]
         self.slave = None
         self.time = start_time
+        #: keep an error of exitInitializationMode in :attr:`init_error` instead of raising
+        #: (at instantiation and at each :meth:`reset`)
+        self.init_errors = init_errors
+        #: the FMICallException of the last exitInitializationMode (kept when
+        #: ``init_errors``), None when it was accepted
+        self.init_error: Exception | None = None
         #: the parameter values set in initialisation mode (again by :meth:`reset`)
         self.start_values = dict(start_values or {})
         try:
@@ -154,14 +160,7 @@ class FmuTracker:
                 self._instantiate2(instance_name, logging_on, start_time)
             if start_values:
                 self.set(start_values)
-            #: the FMICallException of exitInitializationMode (kept when ``init_errors``)
-            self.init_error = None
-            try:
-                self.slave.exitInitializationMode()
-            except Exception as exc:
-                if not init_errors:
-                    raise
-                self.init_error = exc
+            self._exit_initialization()
         except Exception as exc:
             log = "\n".join(f"[{c}] {m}" for _, c, m in self.messages[-3:])
             # after fmi2Fatal pythonfmu crashes on any further call: leave the instance
@@ -237,20 +236,34 @@ class FmuTracker:
             slave.setupExperiment(startTime=start_time)
             slave.enterInitializationMode()
 
+    def _exit_initialization(self) -> None:
+        """exitInitializationMode; :attr:`init_error` is its error (kept when
+        :attr:`init_errors`, else raised) or None."""
+        self.init_error = None
+        try:
+            self._instance().exitInitializationMode()
+        except Exception as exc:
+            if not self.init_errors:
+                raise
+            self.init_error = exc
+
     def reset(self, start_values: dict | None = None, start_time: float = 0.0) -> None:
         """fmi2Reset / fmi3Reset, then initialise the instance again as at instantiation:
         initialisation mode at ``start_time`` [s] (FMI 2: setupExperiment first), the
         parameter values ``start_values`` (default: the instance's :attr:`start_values`, those
-        given at instantiation), exitInitializationMode; :attr:`time` = ``start_time``.  A
-        refused call raises fmpy's ``FMICallException`` (a reset refused before anything else
-        is called: FMI 3 after Fatal)."""
+        given at instantiation), exitInitializationMode; :attr:`time` = ``start_time``.
+        :attr:`init_error` is that exitInitializationMode's, as at instantiation: None when
+        it is accepted (an earlier refusal is cleared), its error when it is refused and
+        :attr:`init_errors` (else raised).  Any other refused call raises fmpy's
+        ``FMICallException`` (a reset refused before anything else is called: FMI 3 after
+        Fatal)."""
         slave = self._instance()
         slave.reset()
         self._enter_initialization(start_time)
         values = self.start_values if start_values is None else start_values
         if values:
             self.set(values)
-        slave.exitInitializationMode()
+        self._exit_initialization()
         self.time = start_time
 
     def set(self, values: dict) -> None:
