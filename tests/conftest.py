@@ -1,4 +1,9 @@
-"""Shared test configuration: a derandomised hypothesis profile."""
+"""Shared test configuration: a derandomised hypothesis profile, the shared fixtures."""
+
+import os
+import subprocess
+import sys
+from pathlib import Path
 
 import pytest
 from hypothesis import settings
@@ -48,20 +53,29 @@ def booted_follow(tmp_path, stepped_controller):
     return _make
 
 
+def _required_in_ci(pytestconfig) -> bool:
+    """Whether a test that cannot run here fails instead of being skipped: in CI, that is
+    with ``--vcan-required`` (by default from ``CANTRACK_VCAN_REQUIRED=1``, which .ci/run
+    sets) or ``CI=true``."""
+    return bool(pytestconfig.getoption("--vcan-required")) or os.environ.get("CI") == "true"
+
+
+def _skip_or_fail(pytestconfig, why: str) -> None:
+    """Skip the test with ``why``; in CI (:func:`_required_in_ci`) fail with it."""
+    if _required_in_ci(pytestconfig):
+        pytest.fail(why, pytrace=False)
+    pytest.skip(why)
+
+
 def _vendor_build(pytestconfig, available, build):
     """A vendor build for a test tier: ``available()`` -> (ok, why) first; skipped where the
-    sources are absent, a failure in CI (``--vcan-required`` or CI=true), a failed build a
+    sources are absent, a failure in CI (:func:`_required_in_ci`), a failed build a
     failure (one :class:`~controller.testing.vendor.VendorError` for every vendor build)."""
-    import os
-
     from controller.testing.vendor import VendorError
 
     ok, why = available()
-    required = pytestconfig.getoption("--vcan-required") or os.environ.get("CI") == "true"
     if not ok:
-        if required:
-            pytest.fail(why, pytrace=False)
-        pytest.skip(why)
+        _skip_or_fail(pytestconfig, why)
     try:
         return build()
     except VendorError as exc:
@@ -126,3 +140,38 @@ def fmu3_path(tmp_path_factory):
     if not (d / "CanTracker3.fmu").is_file():
         build_tracker_fmu3(d)
     return d / "CanTracker3.fmu"
+
+
+@pytest.fixture(scope="session")
+def pure_wheel(tmp_path_factory) -> Path:
+    """The checkout's wheel without the compile (``CANTRACK_NO_EXTENSIONS=1``: pure Python,
+    a few seconds), built once per session: ``pip wheel --no-deps --no-build-isolation``
+    (setuptools and wheel come with the test extra; nothing from the index).  A test that
+    needs a compiled install adds the installed compiled modules to its unpacked copy
+    (tests/test_fmu.py::test_build_from_a_compiled_install) instead of compiling again."""
+    root = Path(__file__).resolve().parents[1]
+    dist = tmp_path_factory.mktemp("pure-wheel")
+    r = subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation",
+                        "-q", "-w", str(dist), str(root)],
+                       capture_output=True, text=True, timeout=300,
+                       env={**os.environ, "CANTRACK_NO_EXTENSIONS": "1"})
+    assert r.returncode == 0, f"pip wheel {root} failed:\n{r.stderr[-2000:]}"
+    (wheel,) = dist.glob("cantrack-*.whl")
+    return wheel
+
+
+@pytest.fixture(scope="session")
+def compiled_tracking(pytestconfig) -> Path:
+    """The installed ``controller/tracking`` folder of a compiled install (its extension
+    modules and ``_native_manifest.json``, docs/architecture.md "Compiled core").  Where the
+    install is pure (no C compiler at ``pip install``, ``CANTRACK_NO_EXTENSIONS=1``) the test
+    is skipped; in CI (.ci/run installs gcc and the headers first) it fails."""
+    import controller.tracking
+
+    directory = Path(controller.tracking.__file__).resolve().parent
+    compiled = [p for p in directory.iterdir() if p.name.endswith((".so", ".pyd"))]
+    if not compiled or not (directory / "_native_manifest.json").is_file():
+        _skip_or_fail(pytestconfig, f"{directory}: the tracking core is not compiled in this "
+                      "install (pip install -e . needs a C compiler and the Python headers; "
+                      "CANTRACK_NO_EXTENSIONS unset)")
+    return directory

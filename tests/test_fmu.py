@@ -612,37 +612,52 @@ def test_bundled_core_runs_standalone(tracker_fmu, tmp_path):
     assert "OK" in proc.stdout and "/resources/_cantracker_" in proc.stdout
 
 
-def test_build_from_a_regular_install(tmp_path):
-    """``python -m controller.fmu build`` from a wheel install (no repository on the path)."""
-    wheel_dir = tmp_path / "wheel"
-    proc = subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "-q",
-                           "-w", str(wheel_dir), str(REPO)],
-                          capture_output=True, text=True, timeout=300)
-    if proc.returncode != 0:
-        pytest.skip("cannot build the wheel here (pip needs setuptools>=68 and wheel, from "
-                    "the index): " + proc.stderr[-300:])
-    (wheel,) = wheel_dir.glob("cantrack-*.whl")
+def _build_from_install(wheel: Path, tmp_path: Path,
+                        compiled: Path | None = None) -> tuple[Path, dict]:
+    """Unpack ``wheel`` into ``tmp_path/site`` (with the compiled modules and manifest of the
+    ``compiled`` tracking folder added, as a compiled install has them) and run
+    ``python -m controller.fmu build`` from there in a process where the installed package is
+    hidden.  -> (CanTracker.fmu, {"native": controller.tracking.NATIVE there, "tracker": the
+    file controller.tracking.tracker was loaded from})."""
+    import os
+    import shutil
+
     site = tmp_path / "site"
     with zipfile.ZipFile(wheel) as zf:
         zf.extractall(site)
     assert (site / "controller" / "fmu" / "tracker_slave.py").is_file()
+    if compiled is not None:
+        for path in compiled.iterdir():
+            if path.name.endswith((".so", ".pyd")) or path.name == "_native_manifest.json":
+                shutil.copy2(path, site / "controller" / "tracking" / path.name)
     hide = _HIDE_INSTALLED.replace('"/resources/" in spec.origin',
                                    f'spec.origin.startswith({str(site)!r})')
     script = hide + textwrap.dedent(f"""
+        import json
         sys.path.insert(0, {str(site)!r})
+        import controller.tracking.tracker
         from controller.fmu.cli import main
         rc = main(["build", "-o", {str(tmp_path / "out")!r}])
         import controller
         assert controller.__file__.startswith({str(site)!r}), controller.__file__
+        print(json.dumps({{"native": controller.tracking.NATIVE,
+                          "tracker": controller.tracking.tracker.__file__}}))
         sys.exit(rc)
     """)
+    env = {k: v for k, v in os.environ.items() if k != "CANTRACK_PURE"}
     proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
-                          cwd=tmp_path, timeout=120)
+                          cwd=tmp_path, env=env, timeout=120)
     assert proc.returncode == 0, proc.stdout + proc.stderr
-    fmu = tmp_path / "out" / "CanTracker.fmu"
+    probe = json.loads(proc.stdout.splitlines()[-1])
+    assert probe["tracker"].startswith(str(site)), probe
+    return tmp_path / "out" / "CanTracker.fmu", probe
+
+
+def _check_bundles_sources_only(fmu: Path) -> None:
+    """The FMU is valid, bundles the tracking core's sources, never an install's compiled
+    modules (docs/architecture.md "Compiled core": the FMU runs in another Python), and runs
+    as the core here."""
     assert validate_fmu(str(fmu)) == []
-    # the FMU bundles the tracking core's sources, never the install's compiled modules
-    # (docs/architecture.md "Compiled core": the FMU runs in another Python)
     with zipfile.ZipFile(fmu) as zf:
         resources = [n for n in zf.namelist() if n.startswith("resources/")]
     assert [n for n in resources if n.endswith("/tracking/tracker.py")], resources
@@ -651,6 +666,25 @@ def test_build_from_a_regular_install(tmp_path):
     with FmuTracker(fmu, start_values={"planner": 0}) as f:
         got = f.run(conveyor_scenario(T), 300, T)
     assert got.reals == core_run(params_for(planner=0), conveyor_scenario(T), 300).reals
+
+
+def test_build_from_a_regular_install(pure_wheel, tmp_path):
+    """``python -m controller.fmu build`` from a (pure) wheel install: no repository on the
+    path."""
+    fmu, probe = _build_from_install(pure_wheel, tmp_path)
+    assert probe["native"] is False and probe["tracker"].endswith("tracker.py"), probe
+    _check_bundles_sources_only(fmu)
+
+
+def test_build_from_a_compiled_install(pure_wheel, compiled_tracking, tmp_path):
+    """The same from a compiled install (the session's wheel with this install's compiled
+    modules and manifest added, which run there): the FMU still bundles the ``.py`` files
+    only."""
+    fmu, probe = _build_from_install(pure_wheel, tmp_path, compiled=compiled_tracking)
+    assert probe["native"] is True and probe["tracker"].endswith((".so", ".pyd")), (
+        f"the install's compiled modules ({compiled_tracking}) do not run beside the wheel's "
+        f"sources (a build older than the checkout? pip install -e . again): {probe}")
+    _check_bundles_sources_only(fmu)
 
 
 def test_non_python_host(tracker_fmu, tmp_path):

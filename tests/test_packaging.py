@@ -3,7 +3,6 @@
 
 from __future__ import annotations
 
-import os
 import subprocess
 import sys
 import zipfile
@@ -36,17 +35,13 @@ def test_data_path_in_the_checkout():
         data_path("eds", "nope.eds")
 
 
-def test_the_wheel_runs_the_demo_configuration(tmp_path):
-    """Build the wheel, unpack it alone on sys.path and load the demo's bus.yml from it: the
-    EDS paths inside (../../eds/...) resolve within the installed package.  (Pure:
-    CANTRACK_NO_EXTENSIONS=1 skips the compile, and the wheel has no compiled module;
-    tests/test_fmu.py::test_build_from_a_regular_install builds a compiled one.)"""
-    r = subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation",
-                        "-q", "-w", str(tmp_path / "dist"), str(ROOT)],
-                       capture_output=True, text=True, timeout=300,
-                       env={**os.environ, "CANTRACK_NO_EXTENSIONS": "1"})
-    assert r.returncode == 0, r.stderr[-2000:]
-    (wheel,) = (tmp_path / "dist").glob("cantrack-*.whl")
+def test_the_wheel_runs_the_demo_configuration(pure_wheel, tmp_path):
+    """The session's wheel (tests/conftest.py ``pure_wheel``) unpacked alone on sys.path
+    loads the demo's bus.yml: the EDS paths inside (../../eds/...) resolve within the
+    installed package.  (Pure: CANTRACK_NO_EXTENSIONS=1 skips the compile, and the wheel has
+    no compiled module; tests/test_fmu.py::test_build_from_a_compiled_install adds an
+    install's compiled modules to it.)"""
+    wheel = pure_wheel
     names = set(zipfile.ZipFile(wheel).namelist())
     assert not [n for n in names if n.endswith((".so", ".pyd", "_native_manifest.json"))]
     assert "controller/tracking/tracker.py" in names
