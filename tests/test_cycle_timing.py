@@ -158,3 +158,31 @@ def test_a_late_wait_still_handles_the_frames_received_before_its_deadline():
     finally:
         peer.shutdown()
         transport.close()
+
+
+def test_a_wait_handles_the_queued_frames_together_before_asking_again():
+    """The frames queued when a receive returns (the devices' answers to a SYNC come in a
+    burst) are handled together, then the completion test is asked once: not once per
+    frame."""
+    channel = f"batch-wait-{time.perf_counter_ns()}"
+    transport = RealtimeTransport(virtual_bus(channel))
+    peer = virtual_bus(channel)
+    got, asked = [], []
+
+    def done() -> bool:
+        asked.append(len(got))
+        return len(got) >= 1
+
+    try:
+        transport.subscribe(0x18A, lambda can_id, data, t: got.append(bytes(data)))
+        import can
+        for i in range(3):
+            peer.send(can.Message(arbitration_id=0x18A, data=bytes((i,)),
+                                  is_extended_id=False))
+        deadline = transport.clock.now_ns() + 1_000_000_000
+        assert transport.run_until(deadline, done) is True
+        assert got == [b"\x00", b"\x01", b"\x02"]
+        assert asked == [0, 3]
+    finally:
+        peer.shutdown()
+        transport.close()

@@ -83,6 +83,9 @@ from ..master.source import (
 )
 from .follow import desync_on_master_loss
 
+#: a named tuple from all its fields in order, without the named tuple's own __new__
+_new_tuple = tuple.__new__
+
 if TYPE_CHECKING:
     from ..config.tracking import TrackingConfig
     from ..slave.encoder import SpeedProfile
@@ -391,9 +394,11 @@ class PickPlace:
             self._master_lost()
         m = self._update(ctx, r, f)
         out = tracker.update(m)
-        return SourceOutput(out.setpoint, self.status(self._robot_imfs),
-                            target=tracker.target(m),
-                            events=tuple(self._events), done=self._done(ctx.cycle))
+        # (every field in order: the named tuple made without its __new__)
+        return _new_tuple(SourceOutput, (out.setpoint, self.status(self._robot_imfs),
+                                         tracker.target(m),
+                                         tuple(self._events) if self._events else (),
+                                         None, self._done(ctx.cycle), None))
 
     def _update(self, ctx: CycleContext, r: RobotGroup, f: MovingFrame) -> MotionState:
         T = self._T
@@ -571,9 +576,10 @@ class PickPlace:
             return SourceStatus(items_detected=detected, items_missed=self.missed,
                                 triggers_dropped=self.triggers_dropped,
                                 items_ignored=self.ignored)
-        return SourceStatus(self.track_state, self.robot.imfs if imfs is None else imfs,
-                            tr.state, tr.imfs, tr.error, detected, self.missed,
-                            self.triggers_dropped, self.ignored)
+        return _new_tuple(SourceStatus, (self.track_state,
+                                         self.robot.imfs if imfs is None else imfs,
+                                         tr.state, tr.imfs, tr.error, detected, self.missed,
+                                         self.triggers_dropped, self.ignored))
 
     def _master_lost(self) -> None:
         if self.current is not None and self.stage in (Step.APPROACH, Step.FOLLOW):

@@ -72,6 +72,8 @@ class Port:
         self.received = 0
         #: the message each COB-ID is sent with (:meth:`send`)
         self._out: dict[int, can.Message] = {}
+        #: :meth:`FastVirtualBus.send_frame` of our virtual bus (None: any other bus)
+        self._send_frame = bus.send_frame if isinstance(bus, FastVirtualBus) else None
 
     def subscribe(self, can_id: int, callback: Callback) -> None:
         lst = self.subscribers.setdefault(can_id, [])
@@ -85,6 +87,14 @@ class Port:
             self.subscribers[can_id].remove(callback)
 
     def send(self, can_id: int, data: bytes | bytearray) -> None:
+        send_frame = self._send_frame
+        if send_frame is not None:  # our virtual bus: no sender's message at all
+            try:
+                send_frame(can_id, data, self.clock.stamp())
+            except can.CanError as exc:
+                raise CanError(f"cannot send 0x{can_id:03X}: {exc}") from exc
+            self.sent += 1
+            return
         # One can.Message per COB-ID, refilled for every frame instead of a new one (its
         # constructor is a third of a frame's cost in the cycle).  python-can's buses take
         # what they send out of the message inside send() -- SocketCAN packs a kernel frame,
@@ -369,7 +379,11 @@ class RealtimeTransport(PortTransport):
         Called when the deadline has passed already (a late cycle), it still handles the
         frames received meanwhile (at most :data:`LATE_FRAMES`), as the stepped world does:
         they arrived before the deadline and belong to the cycle before it, not to the
-        next SYNC's (whose index the caller sets after this wait)."""
+        next SYNC's (whose index the caller sets after this wait).
+
+        The frames queued when a receive returns are handled together before ``done()`` is
+        asked again (one test per wake-up, not per frame: the devices answer a SYNC in a
+        burst), each batch cut at the deadline."""
         now_ns = self.clock.now_ns
         recv = self.port.bus.recv
         handle = self.port.handle
@@ -388,8 +402,11 @@ class RealtimeTransport(PortTransport):
             msg = recv((rest - spin) * 1e-9) if rest > spin else recv(0)
             # (a blocking recv(timeout) may return a little after the deadline: the
             #  next loop pass sees rest <= 0)
-            if msg is not None:
+            while msg is not None:
                 handle(msg)
+                if now_ns() >= deadline_ns:
+                    break  # (the rest, at most LATE_FRAMES, in the next pass)
+                msg = recv(0)
 
     def close(self) -> None:
         self.port.bus.shutdown()

@@ -13,7 +13,12 @@ changes only those two things and stays a ``VirtualBus`` on the same channels (a
   default ``rx_queue_size=0`` is);
 - ``recv`` without receive filters takes the queue directly: ``BusABC.recv`` calls
   ``time.time()`` twice and logs every frame at level 9 (``LOG.log`` is ~1.5 us even when
-  nothing is logged), 10 % of a stepped run; with filters set it is python-can's.
+  nothing is logged), 10 % of a stepped run; with filters set it is python-can's.  An empty
+  ``recv(0)`` (the poll before a SYNC deadline, the stepped world's drain) asks the queue
+  whether it is empty instead of raising and catching ``queue.Empty``;
+- :meth:`FastVirtualBus.send_frame` sends a standard data frame from its COB-ID, data and
+  message time (what :class:`~.transport.Port` sends): the receivers' messages are built
+  from them, with no sender's :class:`can.Message` in between.
 """
 
 from __future__ import annotations
@@ -64,14 +69,46 @@ class FastVirtualBus(_virtual.VirtualBus):
             m.error_state_indicator = msg.error_state_indicator
             bus_queue.put(m)
 
+    def send_frame(self, can_id: int, data: bytes | bytearray, timestamp: float) -> None:
+        """Send the standard (11-bit) data frame ``can_id`` with ``data`` at message time
+        ``timestamp`` [s]: what :meth:`send` does with ``can.Message(arbitration_id=can_id,
+        data=data, is_extended_id=False, timestamp=timestamp)``, without building that
+        message (each receiver gets its own, a new ``bytearray`` of the data)."""
+        if not self._open:
+            self._check_if_open()
+        if not self.preserve_timestamps:
+            timestamp = time.time()
+        own = self.queue
+        channel_id = self.channel_id
+        dlc = len(data)
+        for bus_queue in self.channel:
+            if bus_queue is own and not self.receive_own_messages:
+                continue
+            m = _new(_Message)
+            m.timestamp = timestamp
+            m.arbitration_id = can_id
+            m.is_extended_id = False
+            m.is_remote_frame = False
+            m.is_error_frame = False
+            m.channel = channel_id
+            m.dlc = dlc
+            m.data = bytearray(data)
+            m.is_fd = False
+            m.is_rx = bus_queue is not own
+            m.bitrate_switch = False
+            m.error_state_indicator = False
+            bus_queue.put(m)
+
     def recv(self, timeout: float | None = None) -> can.Message | None:
         if self._filters is not None:
             return super().recv(timeout)
         if not self._open:
             self._check_if_open()
+        q = self.queue
+        if timeout == 0:
+            # (one reader per queue: not empty now, not empty at the get)
+            return None if q.empty() else q.get_nowait()
         try:
-            if timeout == 0:
-                return self.queue.get_nowait()
-            return self.queue.get(True, timeout)
+            return q.get(True, timeout)
         except queue.Empty:
             return None

@@ -370,17 +370,19 @@ class Controller:
             m.cycle = k
         for a in self.axes:
             a.cycle = k
-        cpu0 = time.thread_time_ns()
+        rt = clock.realtime
+        # (the thread's CPU clock is a system call: read in real time only, its figures')
+        cpu0 = time.thread_time_ns() if rt else 0
         t_sent = clock.now_ns()
         self.sync.send()
         complete = transport.run_until(deadline + self.compute_ns, self._inputs_complete)
         t_c = clock.now_ns()
-        cpu1 = time.thread_time_ns()
+        cpu1 = time.thread_time_ns() if rt else 0
         rec = self._compute(k, t_sent, deadline)
         t_done = clock.now_ns()
-        cpu2 = time.thread_time_ns()
         tm = self.timing
-        if clock.realtime:
+        if rt:
+            cpu2 = time.thread_time_ns()
             tm.sync_late.add(t_sent - deadline)
             if self._last_sync_sent is not None:
                 interval = t_sent - self._last_sync_sent
@@ -665,12 +667,17 @@ class Controller:
         if est is None:
             est = MasterEstimate(0.0, 0.0, 0.0)
         m = self.master
-        commands = tuple(self._commands)
-        self._commands.clear()
-        ctx = CycleContext(k, t_s, deadline,
-                           MasterView(est, m.belt_mm, m.ready, self._master_event),
-                           self._drive_views(k), commands, self.last_tracking_error,
-                           self._master_views())
+        if self._commands:
+            commands = tuple(self._commands)
+            self._commands.clear()
+        else:
+            commands = ()
+        # (the named tuples with every field given in order, made without their __new__)
+        ctx = _new_tuple(CycleContext, (
+            k, t_s, deadline, _new_tuple(MasterView, (est, m.belt_mm, m.ready,
+                                                      self._master_event)),
+            self._drive_views(k), commands, self.last_tracking_error,
+            self._master_views() if self._cell else ()))
         out = self.source.step(ctx)
         self.last_output = out
         self.status = out.status
