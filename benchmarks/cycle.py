@@ -186,6 +186,9 @@ def controller_run(period_us: int, seconds: float, tmp: Path, spin_ns: int,
     finally:
         world.close()
     t = timing_summary(ctl)
+    # (of the controller's CPU per cycle, outside the compute: the SYNC's send and the wait
+    #  for the inputs; the controller's own figure, not in the run report)
+    t["cpu_wait_us"] = ctl.timing.cpu_wait.summary_us()
     t["bus_load_1mbit"] = ctl.bus_load.load
     t["process_cpu_per_cycle_us"] = cpu / max(1, ctl.k) * 1e6
     t["process_cpu_share"] = cpu / wall
@@ -273,6 +276,9 @@ def main(argv=None) -> int:
                   f"{cpu['max']:10.1f}")
             print(f"{'  of it the compute [us]':<34}{comp['p50']:9.1f}{comp['p99']:9.1f}"
                   f"{comp['max']:10.1f}")
+            w = ctl["cpu_wait_us"]
+            print(f"{'  SYNC send + input wait [us]':<34}{w['p50']:9.1f}{w['p99']:9.1f}"
+                  f"{w['max']:10.1f}")
             print(f"process CPU per cycle (with the device thread): "
                   f"{ctl['process_cpu_per_cycle_us']:.0f} us "
                   f"({100 * ctl['process_cpu_share']:.0f} % of a core)")
@@ -397,6 +403,10 @@ def print_before_after(before: dict, after: dict) -> None:
                  a["cpu_cycle_us"]["p99"]),
                 ("  of it the compute p50 [us]", b["cpu_compute_us"]["p50"],
                  a["cpu_compute_us"]["p50"]),
+                # (nan: an earlier cycle.py, e.g. d554ece's, has no such figure)
+                ("  SYNC send + input wait p50 [us]",
+                 b["cpu_wait_us"]["p50"] if "cpu_wait_us" in b else float("nan"),
+                 a["cpu_wait_us"]["p50"]),
                 ("process CPU per cycle [us]", b["process_cpu_per_cycle_us"],
                  a["process_cpu_per_cycle_us"]),
                 ("missed deadlines", b["missed"], a["missed"]),

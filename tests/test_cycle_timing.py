@@ -186,3 +186,22 @@ def test_a_wait_handles_the_queued_frames_together_before_asking_again():
     finally:
         peer.shutdown()
         transport.close()
+
+
+def test_the_cycles_cpu_outside_the_compute_is_its_own_figure(stepped_controller, tmp_path):
+    """cpu_wait: the SYNC's send and the input wait, per cycle, beside the compute; with a
+    source burning 1 ms of CPU in each of its cycles the compute holds it, the wait does
+    not, and the two make up the cycle's CPU."""
+    cfg = load(tmp_path)
+    world, _ = stepped_controller(cfg)
+    world.clock.realtime = True
+    ctl = Controller(cfg, world.transport, _Slow(world.clock, 1_000_000, burn=True),
+                     keep_trace=False)
+    ctl.boot()
+    ctl.start()
+    ctl.run(max_cycles=120, realtime_gc=False)
+    tm = ctl.timing
+    assert tm.cpu_wait.n == tm.cpu_cycle.n == tm.cpu_compute.n == 120
+    assert tm.cpu_wait.total + tm.cpu_compute.total == tm.cpu_cycle.total
+    assert ctl.source.n > 60  # (most cycles ran the source)
+    assert tm.cpu_compute.percentile(50) >= 1_000_000 > tm.cpu_wait.percentile(50)

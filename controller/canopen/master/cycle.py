@@ -158,6 +158,9 @@ class Timing:
     latency: Histogram = field(default_factory=Histogram)
     cpu_cycle: Histogram = field(default_factory=Histogram)
     cpu_compute: Histogram = field(default_factory=Histogram)
+    #: of ``cpu_cycle`` the SYNC's send and the wait for the inputs (their wake-ups and
+    #: handling): the cycle's CPU outside the compute
+    cpu_wait: Histogram = field(default_factory=Histogram)
     missed: int = 0
     #: deadlines missed in a row: the current streak, the longest, how many streaks
     missed_run: Run = field(default_factory=Run)
@@ -396,6 +399,7 @@ class Controller:
                 tm.latency.add(t_done - snap[1])
             tm.cpu_compute.add(cpu2 - cpu1)
             tm.cpu_cycle.add(cpu2 - cpu0)
+            tm.cpu_wait.add(cpu1 - cpu0)
             if t_done > deadline + self.period_ns:
                 tm.missed += 1
                 streak = tm.missed_run.hit()
