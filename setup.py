@@ -16,6 +16,9 @@ package data) is in pyproject.toml.
 - The build records the SHA-256 of each compiled source in ``controller/tracking/
   _native_manifest.json``; at import the package runs the compiled modules only while every
   source still has its recorded hash (controller/tracking/__init__.py: the stale build guard).
+- An editable install whose in-place build is up to date is not compiled again (``pip install
+  -e .`` twice: the second is not another compile): the manifest also records what else the
+  compile depends on, and ``_in_place_build_stale`` compares it all (see there).
 """
 
 from __future__ import annotations
@@ -24,6 +27,7 @@ import hashlib
 import json
 import os
 import sys
+import sysconfig
 import tempfile
 from pathlib import Path
 
@@ -75,16 +79,116 @@ def _remove_build(directory: Path = TRACKING) -> None:
             path.unlink()
 
 
-def _write_manifest(directory: Path) -> None:
-    entries = {p.name: hashlib.sha256(p.read_bytes()).hexdigest() for p in _sources()}
+def _write_manifest(directory: Path, record: dict | None = None) -> None:
+    """The manifest of a build from the checkout as it is now (``record``: by default
+    :func:`_build_record`): what the stale build guard at import and the next editable
+    install's up-to-date check read."""
     directory.mkdir(parents=True, exist_ok=True)
-    (directory / MANIFEST).write_text(
-        json.dumps({"group": GROUP, "sources": entries}, indent=1, sort_keys=True) + "\n")
+    (directory / MANIFEST).write_text(json.dumps(
+        _build_record() if record is None else record, indent=1, sort_keys=True) + "\n")
+
+
+#: mypycify's options for the compile (recorded: another value is another build)
+MYPYC_OPTIONS = {"opt_level": "3", "debug_level": "0", "group_name": GROUP}
+#: the environment variables that change the C compile and link (setuptools' compiler reads
+#: CC, CFLAGS & co.; mypyc's MYPYC_NO_EXTRA_FLAGS drops its own flags)
+COMPILE_ENV = ("CC", "CXX", "CFLAGS", "CPPFLAGS", "LDFLAGS", "LDSHARED", "ARCHFLAGS",
+               "MYPYC_NO_EXTRA_FLAGS")
+
+
+def _read_modules() -> list[Path]:
+    """The modules mypy reads beside the compiled ones (the C code builds in their types):
+    the package's pure modules and the base layer, the only one the tracking layer may import
+    (docs/architecture.md "Layers": ``controller/*.py``)."""
+    compiled = set(_sources())
+    return sorted({p for p in TRACKING.glob("*.py") if p not in compiled}
+                  | set((HERE / "controller").glob("*.py")))
+
+
+def _sha256(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def _mypy_version() -> str | None:
+    """The version of the mypy (mypyc) that compiles, None without one."""
+    try:
+        from mypy.version import __version__
+    except ImportError:
+        return None
+    return str(__version__)
+
+
+def _build_record(mypy_version: str | None = None) -> dict:
+    """What a compile of the checkout as it is now depends on, as the manifest records it:
+    ``sources`` (compiled module -> SHA-256 of its source; the stale build guard at import
+    reads these) and ``build``: the Python (``sys.version``: version and build, and the
+    extension suffix: the C API and ABI compiled against), the mypy version (by default the
+    one this build imports), the compile flags (mypycify's options, the mypy settings
+    ``MYPYC_INI``, the ``COMPILE_ENV`` variables) and the SHA-256 of the modules mypy reads
+    beside the compiled ones (``_read_modules``)."""
+    return {
+        "group": GROUP,
+        "sources": {p.name: _sha256(p) for p in _sources()},
+        "build": {
+            "python": sys.version,
+            "ext_suffix": sysconfig.get_config_var("EXT_SUFFIX"),
+            "mypy": _mypy_version() if mypy_version is None else mypy_version,
+            "flags": {"mypycify": MYPYC_OPTIONS, "mypy_ini": MYPYC_INI,
+                      "env": {k: os.environ.get(k) for k in COMPILE_ENV}},
+            "read": {p.relative_to(HERE).as_posix(): _sha256(p) for p in _read_modules()},
+        },
+    }
+
+
+def _in_place_build_stale(directory: Path, record: dict) -> str | None:
+    """Why the compiled build in ``directory`` (an editable install's, in place) is not the
+    build ``record`` (:func:`_build_record`) describes, or None when it is: skip the compile.
+
+    Compared: the manifest's group, every compiled source's SHA-256 (the same modules, none
+    added or removed), the Python version and build and its extension suffix, the mypy
+    version, the compile flags, the SHA-256 of the modules mypy reads beside them, and that
+    the group's shared library and every module's extension file (with the recorded suffix)
+    exist.  A manifest of an older setup.py, without the ``build`` part, is stale."""
+    try:
+        built = json.loads((directory / MANIFEST).read_text())
+    except (OSError, ValueError) as exc:
+        return f"no usable {MANIFEST} ({type(exc).__name__})"
+    if not isinstance(built, dict):
+        return f"{MANIFEST} is not a build record"
+    if built.get("group") != record["group"]:
+        return f"the mypyc group differs ({built.get('group')!r})"
+    then, now = built.get("sources") or {}, record["sources"]
+    for name in sorted(set(then) | set(now)):
+        if name not in then:
+            return f"{name}: not compiled in the last build"
+        if name not in now:
+            return f"{name}: compiled in the last build, not a compiled module now"
+        if then[name] != now[name]:
+            return f"{name}: changed since the last build"
+    build = built.get("build")
+    if not isinstance(build, dict):
+        return f"{MANIFEST} records no build (written by an older setup.py)"
+    for key, what in (("python", "the Python"), ("ext_suffix", "the extension suffix"),
+                      ("mypy", "the mypy version"), ("flags", "the compile flags")):
+        if build.get(key) != record["build"][key]:
+            return f"{what} changed (last build {build.get(key)!r}, now {record['build'][key]!r})"
+    then, now = build.get("read") or {}, record["build"]["read"]
+    for name in sorted(set(then) | set(now)):
+        if then.get(name) != now.get(name):
+            return f"{name}: changed since the last build (mypy reads its types)"
+    suffix = record["build"]["ext_suffix"]
+    for stem in ["_core__mypyc"] + sorted(name[:-3] for name in record["sources"]):
+        if not (directory / (stem + suffix)).is_file():
+            return f"{stem}{suffix}: missing"
+    return None
 
 
 class BuildExt(build_ext):
     """build_ext that falls back to the pure package when the compile fails, and writes the
     source manifest beside the compiled modules when it succeeds."""
+
+    #: the build record (:func:`_build_record`) taken before mypyc translated the sources
+    record: dict | None = None
 
     def run(self) -> None:
         if not self.extensions:
@@ -96,7 +200,7 @@ class BuildExt(build_ext):
             self._drop_outputs()
             return
         for target in self._output_dirs():
-            _write_manifest(target)
+            _write_manifest(target, self.record)
 
     def _output_dirs(self) -> set[Path]:
         """Where this build puts the compiled modules: the build tree, and the checkout for
@@ -135,6 +239,17 @@ def _extensions() -> list:
         if editable:
             _remove_build()  # (a regular build leaves the checkout's alone)
         return []
+    record = _build_record()
+    # pip install -e . again: no second compile of an in-place build that is up to date (not
+    # for editable_mode=strict: its link tree has only the files this build lists)
+    if editable and "strict" not in sys.argv:
+        stale = _in_place_build_stale(TRACKING, record)
+        if stale is None:
+            print("cantrack: the in-place compiled tracking core is up to date (sources, "
+                  "Python, mypy, compile flags): not compiled again", file=sys.stderr)
+            return []
+        print(f"cantrack: compiling the tracking core ({stale})", file=sys.stderr)
+    BuildExt.record = record
     extensions = _mypycify()
     if not extensions and editable:
         _remove_build()  # (an older in-place build must not run instead)
@@ -154,7 +269,8 @@ def _mypycify() -> list:
         os.chdir(HERE)  # mypyc names the modules from the paths relative to the checkout
         return mypycify(
             ["--config-file", ini.name] + [str(p.relative_to(HERE)) for p in _sources()],
-            opt_level="3", debug_level="0", group_name=GROUP)
+            opt_level=MYPYC_OPTIONS["opt_level"], debug_level=MYPYC_OPTIONS["debug_level"],
+            group_name=MYPYC_OPTIONS["group_name"])
     except BaseException as exc:  # noqa: BLE001 -- mypyc exits (SystemExit) on a type error
         if isinstance(exc, KeyboardInterrupt):
             raise
@@ -165,4 +281,5 @@ def _mypycify() -> list:
         os.unlink(ini.name)
 
 
-setup(ext_modules=_extensions(), cmdclass={"build_ext": BuildExt})
+if __name__ == "__main__":  # (setuptools runs this file as __main__; tests import it)
+    setup(ext_modules=_extensions(), cmdclass={"build_ext": BuildExt})
