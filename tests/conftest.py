@@ -67,6 +67,13 @@ def _skip_or_fail(pytestconfig, why: str) -> None:
     pytest.skip(why)
 
 
+@pytest.fixture(scope="session")
+def skip_or_fail(pytestconfig):
+    """``skip_or_fail(why)``: skip the test with ``why``, or in CI fail with it
+    (:func:`_required_in_ci`), for tests that need something this install may lack."""
+    return lambda why: _skip_or_fail(pytestconfig, why)
+
+
 def _vendor_build(pytestconfig, available, build):
     """A vendor build for a test tier: ``available()`` -> (ok, why) first; skipped where the
     sources are absent, a failure in CI (:func:`_required_in_ci`), a failed build a
