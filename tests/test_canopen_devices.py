@@ -471,3 +471,57 @@ def test_probe_input_home_in_the_simulation_section(tmp_path):
     p.write_text(text.replace("  x: {initial_counts: ", "  x: {probe_input: homr, initial_counts: "))
     with pytest.raises(ConfigError, match=r"bus.yml:\d+.*probe_input.*did you mean"):
         load_config(p)
+
+
+def test_cached_timers_follow_every_change(bus):
+    """The devices' next timer is cached (the rack asks after every frame batch): after
+    fault injection, SDO writes, NMT commands and SYNCs it is what it computes afresh."""
+    world, m = bus
+    rack = world.rack
+
+    def check():
+        fresh = {n: d._next_timer() for n, d in rack.devices.items()}
+        assert {n: d.next_timer_ns() for n, d in rack.devices.items()} == fresh
+        due = [t for t in fresh.values() if t is not None]
+        assert rack.next_timer_ns() == (min(due) if due else None)
+
+    drive = enabled_x(world, m, 4_000_000)
+    check()
+    m.sdo(11).download(0x1017, 0, struct.pack("<H", 40))  # heartbeat time
+    check()
+    m.sdo(11).download(0x1802, 5, struct.pack("<H", 5))  # TPDO3's event timer: first
+    check()
+    m.sync({0x20B: rpdo(0x0F, 4_000_000)})  # (the PDOs read again at the SYNC)
+    check()
+    drive.mute_pdos(True)
+    check()
+    drive.pdos_muted = False
+    check()
+    drive.silent = True
+    check()
+    drive.silence(False)
+    m.sync({0x20B: rpdo(0x0F, 4_000_000)})
+    check()
+    m.sdo(11).download(0x1802, 5, struct.pack("<H", 0))  # (no event timer: quiet)
+    target = 4_000_000
+    for _ in range(20):  # moving at 0.5 m/s: the fault reaction ramps down from there
+        target += 5000
+        m.sync({0x20B: rpdo(0x0F, target)})
+    drive.inject_fault(0x2310)  # the fault reaction's ramp runs on the drive's timer
+    check()
+    for _ in range(3):  # SYNCs step the ramp: its timer (2 periods) from each step
+        m.sync({0x20B: rpdo(0x0F, target)}, period_ms=1.0)
+        assert drive.state is State.FAULT_REACTION_ACTIVE
+        check()
+    for _ in range(3):
+        m.run(3)
+        check()
+    drive.power_off()
+    check()
+    drive.powered = True
+    m.nmt(0x02, 11)
+    check()
+    m.nmt(0x82, 11)  # reset communication: boot-up after the boot delay
+    check()
+    m.run(10)
+    check()

@@ -349,3 +349,35 @@ def test_rpdo_synchronous_applied_at_the_next_sync():
         peer.send(cob, bytes([0x06]))  # too short: not processed
         _sync(world, peer)
         assert eng.load(index, sub) == 0x0F
+
+
+def test_event_tpdo_keeps_its_inhibit_time_and_event_timer():
+    """Type 255, inhibit time 5 ms (18xxh:3 = 50 x 100 us), event timer 20 ms (18xxh:5): a
+    mapped object changing every 1 ms goes out at most every 5 ms, each frame with the
+    newest value; unchanged, the PDO repeats every 20 ms (CiA 301 7.2.2.6.1)."""
+    with stepped() as (world, eng, peer):
+        cob = eng.load(0x1800, 1) & 0x7FF
+        assert _expedited(peer, world, 0x1800, 2, b"\xff")[0] == 0x60
+        assert _expedited(peer, world, 0x1800, 3, struct.pack("<H", 50))[0] == 0x60
+        assert _expedited(peer, world, 0x1800, 5, struct.pack("<H", 20))[0] == 0x60
+        mapped = eng.load(0x1A00, 1)
+        index, sub, bits = mapped >> 16, (mapped >> 8) & 0xFF, mapped & 0xFF
+        _start(world, peer)
+        t0 = world.clock.now_ns()
+        k = len(peer.frames)
+        for i in range(1, 31):  # a change every 1 ms for 30 ms, served by the node's timers
+            def change(i=i):
+                eng.store(index, sub, i)
+                eng.service_event_pdos(world.clock.now_ns())
+            world.at(t0 + i * 1_000_000, change)
+        world.run_until(t0 + 31_000_000)
+        changing = [(t, d) for t, c, d in peer.frames[k:] if c == cob]
+        gaps = [b[0] - a[0] for a, b in zip(changing, changing[1:])]
+        assert len(changing) >= 5 and min(gaps) >= 5_000_000
+        last = int.from_bytes(changing[-1][1][:bits // 8], "little")
+        assert last >= 25  # (the newest value: the changes never stopped the PDO)
+        k = len(peer.frames)
+        world.run_until(world.clock.now_ns() + 70_000_000)
+        quiet = [t for t, c, _ in peer.frames[k:] if c == cob]
+        assert len(quiet) == 3 and [b - a for a, b in zip(quiet, quiet[1:])] == \
+            [20_000_000, 20_000_000]

@@ -59,11 +59,21 @@ EMCY_FOLLOWING_ERROR = 0x8611
 EMCY_HEARTBEAT = 0x8130
 EMCY_GENERIC = 0x1000
 
-#: the parameter cache's key of the interpolation period dt_s [s]
-_DT_KEY = (0x60C2, -1)
 HM_START = 1 << 4  #: controlword bit 4 in homing mode: homing operation start
 HM_ATTAINED = 1 << 12  #: statusword bit 12 in homing mode: homing attained
 HM_ERROR = 1 << 13  #: statusword bit 13 in homing mode: homing error
+
+#: the statusword's bits given by the 402 state alone (state bits, remote, voltage enabled)
+_SW_STATE: dict[State, int] = {
+    st: bits | cia402.SW_REMOTE | (cia402.SW_VOLTAGE_ENABLED if st in (
+        State.READY_TO_SWITCH_ON, State.SWITCHED_ON, State.OPERATION_ENABLED,
+        State.QUICK_STOP_ACTIVE, State.FAULT_REACTION_ACTIVE) else 0)
+    for st, bits in cia402.STATE_BITS.items()}
+#: the states whose ramp runs on the drive's own timer without SYNC (device_timer_ns)
+_RAMPS = (State.QUICK_STOP_ACTIVE, State.FAULT_REACTION_ACTIVE)
+#: the objects :meth:`SimDrive._publish` writes, in its order
+_PUBLISHED = ((0x6041, 0), (0x6064, 0), (0x606C, 0), (0x60F4, 0), (0x60FD, 0))
+_UNREAD = object()  #: no raw value read yet (the caches of 6040h and 607Ah)
 
 
 class SimDrive(SimNode):
@@ -92,8 +102,33 @@ class SimDrive(SimNode):
         self._probe_armed = False
         self._probe_toggle = False
         self._last_step_ns = clock.now_ns()
-        #: configuration values by (index, sub) and the interpolation period (_DT_KEY)
+        #: configuration values by (index, sub), until the next SDO write or reset
         self._params: dict[tuple[int, int], Any] = {}
+        #: the parameters of every SYNC, read from the OD with ``_params`` (_load_cfg):
+        #: 6061h, 605Ah, 6065h, 6066h, the interpolation period 60C2h [s], and what the
+        #: servo model makes of it: 1 - exp(-dt/tau), the step limit v_max * dt [counts]
+        self._cfg_ok = False
+        self._mode = 0
+        self._qs_option = 0
+        self._fe_window = 0
+        self._fe_ms = 0
+        self._dt = 0.002
+        self._lag = 1.0
+        self._step_max = 0.0
+        #: no switch or limit configured: 60FDh is the probe level alone
+        p = self.params
+        self._no_switches = (p.negative_limit is None and p.positive_limit is None
+                             and p.home_switch is None and p.slow_down is None)
+        #: 6040h and 607Ah as last decoded: (the stored bytes object, its value)
+        self._cw_raw: object = _UNREAD
+        self._cw = 0
+        self._target_raw: object = _UNREAD
+        self._target = 0.0
+        #: the inputs of the last controlword evaluation that changed nothing and saw no
+        #: edge: (state, controlword, 6061h, 605Ah, enable input); the same again is a
+        #: no-op (_apply_controlword); None after any state change
+        self._cw_idle: tuple[State, int, int, int, bool] | None = None
+        self._publish_plan = self.store_plan(_PUBLISHED)
         #: reported position - physical position [counts] (changed by the homing mode)
         self._home_shift = 0.0
         #: homing mode: None (not started), "run", "done" or "error"
@@ -112,18 +147,37 @@ class SimDrive(SimNode):
             value = self._params[key] = int(self.load(index, sub))
         return value
 
+    def _params_changed(self) -> None:
+        """An SDO write, a mode change or a reset: the parameters are read again."""
+        self._params.clear()
+        self._cfg_ok = False
+
+    def _load_cfg(self) -> None:
+        self._mode = self.param(0x6061, 0)
+        self._qs_option = self.param(0x605A)
+        self._fe_window = self.param(0x6065)
+        self._fe_ms = self.param(0x6066)
+        dt = self.param(0x60C2, 1) * 10.0 ** self.param(0x60C2, 2)
+        dt = self._dt = dt if dt > 0 else 0.002
+        p = self.params
+        a = math.exp(-dt / p.tau_s) if p.tau_s > 0 else 0.0
+        self._lag = 1.0 - a
+        self._step_max = p.max_velocity * dt
+        self._cfg_ok = True
+
     @property
     def dt_s(self) -> float:
         """The interpolation period 60C2h [s] (cached with the parameters)."""
-        dt = self._params.get(_DT_KEY)
-        if dt is None:
-            dt = self.param(0x60C2, 1) * 10.0 ** self.param(0x60C2, 2)
-            dt = self._params[_DT_KEY] = dt if dt > 0 else 0.002
-        return dt
+        if not self._cfg_ok:
+            self._load_cfg()
+        return self._dt
 
     @property
     def mode(self) -> int:
-        return self.param(0x6061, 0)
+        """6061h, the mode of operation the drive runs (cached with the parameters)."""
+        if not self._cfg_ok:
+            self._load_cfg()
+        return self._mode
 
     # -- fault injection -------------------------------------------------------------------
     def inject_fault(self, code: int = EMCY_GENERIC) -> None:
@@ -197,6 +251,8 @@ class SimDrive(SimNode):
     def _enter(self, state: State, number: int) -> None:
         old = self.state
         self.state = state
+        self._cw_idle = None
+        self._retime()  # (the ramp timer depends on the state)
         self.transitions.append((number, old, state))
         if state is State.OPERATION_ENABLED:
             # the drive takes the target it has now (a stale 607Ah makes it jump)
@@ -217,29 +273,51 @@ class SimDrive(SimNode):
         self._publish()
 
     def _apply_controlword(self) -> None:
-        cw = int(self.load(0x6040, 0))
-        result = cia402.transition_for(self.state, cw, self._prev_cw, self.param(0x605A))
-        if self.state is State.OPERATION_ENABLED and self.mode == cia402.MODE_HM:
-            if cw & HM_START and not self._prev_cw & HM_START:
+        d = self.node.data_store.get(0x6040)
+        raw = d.get(0) if d is not None else None
+        if raw is self._cw_raw:  # (decoded when the stored bytes change)
+            cw = self._cw
+        else:
+            cw = self._cw = int(self.load(0x6040, 0))
+            self._cw_raw = raw
+        if not self._cfg_ok:
+            self._load_cfg()
+        state = self.state
+        prev = self._prev_cw
+        idle = (state, cw, self._mode, self._qs_option, self.enable_input) \
+            if cw == prev else None
+        if idle is not None and idle == self._cw_idle:
+            return  # (the same inputs as last time, when nothing happened: nothing again)
+        result = cia402.transition_for(state, cw, prev, self._qs_option)
+        if state is State.OPERATION_ENABLED and self._mode == cia402.MODE_HM:
+            if cw & HM_START and not prev & HM_START:
                 self.homing_status = "run"
             elif not cw & HM_START and self.homing_status == "run":
                 self.homing_status = None  # bit 4 low: homing interrupted
         self._prev_cw = cw
         if result is not None:
             if result[0] is State.READY_TO_SWITCH_ON and not self.enable_input:
+                self._cw_idle = idle
                 return  # no power stage without the enable input
             self._enter(*result)
+        else:
+            self._cw_idle = idle
 
     # -- servo model -----------------------------------------------------------------------
     def _servo_step(self, dt: float) -> None:
-        p = self.params
         st = self.state
-        mode = self.mode if st is State.OPERATION_ENABLED else None
+        if not self._cfg_ok:
+            self._load_cfg()
+        mode = self._mode if st is State.OPERATION_ENABLED else None
         if mode == cia402.MODE_CSP:
             d = self._limited_demand()
-            a = math.exp(-dt / p.tau_s) if p.tau_s > 0 else 0.0
-            step = (d - self.x) * (1.0 - a)
-            lim = p.max_velocity * dt
+            if dt == self._dt:  # (the period's factors computed with the parameters)
+                lag, lim = self._lag, self._step_max
+            else:
+                p = self.params
+                a = math.exp(-dt / p.tau_s) if p.tau_s > 0 else 0.0
+                lag, lim = 1.0 - a, p.max_velocity * dt
+            step = (d - self.x) * lag
             step = max(-lim, min(lim, step))
             self.x += step
             self.v = step / dt
@@ -255,7 +333,7 @@ class SimDrive(SimNode):
             if speed == 0.0:
                 if st is State.FAULT_REACTION_ACTIVE:
                     self._enter(State.FAULT, 14)
-                elif self.param(0x605A) in (0, 1, 2, 3):
+                elif self._qs_option in (0, 1, 2, 3):
                     self._enter(State.SWITCH_ON_DISABLED, 12)
         else:
             self.v = 0.0
@@ -305,8 +383,10 @@ class SimDrive(SimNode):
 
     def _limited_demand(self) -> float:
         d = self.demand
-        inputs = self._inputs()
         self._internal_limit = False
+        if self._no_switches:
+            return d  # (no limit switch)
+        inputs = self._inputs()
         if inputs & 0x1 and d < self.x:
             d, self._internal_limit = self.x, True
         if inputs & 0x2 and d > self.x:
@@ -314,18 +394,20 @@ class SimDrive(SimNode):
         return d
 
     def _check_following_error(self, dt: float) -> None:
-        window = self.param(0x6065)
+        window = self._fe_window
         error = self.demand - self.x
         if window != 0xFFFFFFFF and abs(error) > window and not self._internal_limit:
             self._following_error = True
             self._fe_time_s += dt
-            if self._fe_time_s * 1000.0 >= self.param(0x6066) - 1e-9:
+            if self._fe_time_s * 1000.0 >= self._fe_ms - 1e-9:
                 self._fault(EMCY_FOLLOWING_ERROR)
         else:
             self._following_error = False
             self._fe_time_s = 0.0
 
     def _inputs(self) -> int:
+        if self._no_switches:
+            return 1 << 17 if self._probe_level else 0
         p = self.params
         x = self.x - self._home_shift  # the switches are where they physically are
         bits = 0
@@ -342,46 +424,54 @@ class SimDrive(SimNode):
         return bits
 
     def statusword(self) -> int:
-        sw = cia402.STATE_BITS[self.state] | cia402.SW_REMOTE
-        if self.state in (State.READY_TO_SWITCH_ON, State.SWITCHED_ON,
-                          State.OPERATION_ENABLED, State.QUICK_STOP_ACTIVE,
-                          State.FAULT_REACTION_ACTIVE):
-            sw |= cia402.SW_VOLTAGE_ENABLED
-        mode = self.mode if self.state is State.OPERATION_ENABLED else None
-        if mode == cia402.MODE_CSP:
-            sw |= cia402.SW_FOLLOWS_TARGET
-            if self._following_error:
-                sw |= cia402.SW_FOLLOWING_ERROR
-        if mode == cia402.MODE_HM:
-            if self.homing_status == "done":
-                sw |= cia402.SW_TARGET_REACHED | HM_ATTAINED
-            elif self.homing_status == "error":
-                sw |= cia402.SW_TARGET_REACHED | HM_ERROR
-        if self.state is State.QUICK_STOP_ACTIVE and self.v == 0.0:
+        st = self.state
+        sw = _SW_STATE[st]  # (state bits, remote, voltage enabled)
+        if st is State.OPERATION_ENABLED:
+            mode = self.mode
+            if mode == cia402.MODE_CSP:
+                sw |= cia402.SW_FOLLOWS_TARGET
+                if self._following_error:
+                    sw |= cia402.SW_FOLLOWING_ERROR
+            elif mode == cia402.MODE_HM:
+                if self.homing_status == "done":
+                    sw |= cia402.SW_TARGET_REACHED | HM_ATTAINED
+                elif self.homing_status == "error":
+                    sw |= cia402.SW_TARGET_REACHED | HM_ERROR
+        elif st is State.QUICK_STOP_ACTIVE and self.v == 0.0:
             sw |= cia402.SW_TARGET_REACHED  # CiA 402: in quick stop, bit 10 = halted
         if self._internal_limit:
             sw |= cia402.SW_INTERNAL_LIMIT
         return sw
 
     def _publish(self) -> None:
-        x = round(self.x)
-        self.store(0x6041, 0, self.statusword())
-        self.store(0x6064, 0, x)
-        self.store(0x606C, 0, round(self.v))
-        self.store(0x60F4, 0, round(self.demand - self.x))
-        self.store(0x60FD, 0, self._inputs())
+        """6041h, 6064h, 606Ch, 60F4h, 60FDh from the model (``store`` of each)."""
+        self.store_all(self._publish_plan, (
+            self.statusword(), round(self.x), round(self.v), round(self.demand - self.x),
+            self._inputs()))
 
     # -- SimNode hooks ---------------------------------------------------------------------
     def on_sync(self, now_ns: int) -> None:
         x0 = self.x - self._home_shift
-        self._servo_step(self.dt_s)
+        if not self._cfg_ok:
+            self._load_cfg()
+        self._servo_step(self._dt)
         if self._probe_home:
             self._follow_probe(x0)
         self._last_step_ns = now_ns
         self._apply_controlword()
-        if self.state is State.OPERATION_ENABLED and self.mode == cia402.MODE_CSP \
+        st = self.state
+        if not self._cfg_ok:  # (a write in _apply_controlword: the mode read again)
+            self._load_cfg()
+        if st is State.OPERATION_ENABLED and self._mode == cia402.MODE_CSP \
                 and self.nmt_state == NMT_OPERATIONAL:
-            self.demand = float(self.load(0x607A, 0))
+            d = self.node.data_store.get(0x607A)
+            raw = d.get(0) if d is not None else None
+            if raw is not self._target_raw:  # (decoded when the stored bytes change)
+                self._target = float(self.load(0x607A, 0))
+                self._target_raw = raw
+            self.demand = self._target
+        elif st in _RAMPS:
+            self._retime()  # (the ramp's timer runs from this step)
         self._publish()
 
     def on_rpdo(self, number: int, objects: frozenset) -> None:
@@ -392,7 +482,7 @@ class SimDrive(SimNode):
             self._touch_probe_function()
 
     def on_write(self, index: int, sub: int, value: Any) -> None:
-        self._params.clear()  # (the value is stored after this hook: read again later)
+        self._params_changed()  # (the value is stored after this hook: read again later)
         if index == 0x6060:
             if value != cia402.MODE_HM:
                 self.homing_status = None
@@ -400,7 +490,7 @@ class SimDrive(SimNode):
             if value <= 0 or not supported >> (value - 1) & 1:
                 raise SdoAbortError(ABORT_VALUE_RANGE)
             self.store(0x6061, 0, value)
-            self._params.clear()
+            self._params_changed()
         elif index == 0x60C2 and sub == 2 and not -6 <= value <= 0:
             raise SdoAbortError(ABORT_VALUE_RANGE)
         elif index == 0x60B8:
@@ -417,7 +507,7 @@ class SimDrive(SimNode):
         supported = int(self.load(0x6502, 0))
         if mode > 0 and supported >> (mode - 1) & 1:
             self.store(0x6061, 0, mode)
-            self._params.clear()
+            self._params_changed()
 
     def _touch_probe_function(self) -> None:
         self._arm_probe(int(self.load(0x60B8, 0)))
@@ -432,7 +522,7 @@ class SimDrive(SimNode):
 
     def on_reset(self) -> None:
         # the application restarts; the axis stays where it physically is
-        self._params.clear()
+        self._params_changed()
         self.state = State.NOT_READY_TO_SWITCH_ON
         self._enter(State.SWITCH_ON_DISABLED, 1)
         self.v = 0.0
@@ -456,6 +546,8 @@ class SimDrive(SimNode):
         self._publish()
 
     # without SYNC, a ramp (quick stop, fault reaction) still runs on the drive's own timer
+    # (its inputs -- the state, v, 605Ah, 60C2h, the last step -- change in on_sync and
+    #  device_timer, which retime the node in a ramp, in _enter, and by SDO writes)
     def device_timer_ns(self) -> int | None:
         st = self.state
         if st is State.FAULT_REACTION_ACTIVE or (st is State.QUICK_STOP_ACTIVE and (
@@ -471,3 +563,4 @@ class SimDrive(SimNode):
             self._follow_probe(x0)
             self._last_step_ns = now_ns - int(self.dt_s * 1e9)
             self._publish()
+            self._retime()

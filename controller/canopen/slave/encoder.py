@@ -26,6 +26,8 @@ from ..config.simulation import EncoderParams
 from ..protocol.sdo import ABORT_VALUE_RANGE, SdoAbortError
 from .node import SimNode
 
+_UNREAD = object()  #: no raw value read yet (the cache of 6002h)
+
 
 class SpeedProfile:
     """Piecewise-linear speed through points; exact travel s(t) [mm]."""
@@ -40,6 +42,8 @@ class SpeedProfile:
             self.s.append(self.s[-1] + 0.5 * (self.v[i] + self.v[i - 1]) * (self.t[i] - self.t[i - 1]))
         # travel before the first point at constant v[0]
         self._s0 = -self.v[0] * self.t[0]
+        #: the travel at t = 0 from the first point (what travel() subtracts)
+        self._at0 = self._travel(0.0)
 
     def speed(self, t: float) -> float:
         i = bisect.bisect_right(self.t, t)
@@ -52,7 +56,7 @@ class SpeedProfile:
 
     def travel(self, t: float) -> float:
         """Travel since t = 0 [mm]."""
-        return self._travel(t) - self._travel(0.0)
+        return self._travel(t) - self._at0
 
     def _travel(self, t: float) -> float:
         i = bisect.bisect_right(self.t, t)
@@ -77,6 +81,10 @@ class SimEncoder(SimNode):
         self.noise_counts = self.params.noise_counts
         self._rng = random.Random(self.params.seed)
         self._offset = 0  # from a preset (6003h)
+        #: 6002h as last decoded: (the stored bytes object, its value)
+        self._modulus_raw: object = _UNREAD
+        self._modulus = 0
+        self._sample_plan = self.store_plan(((0x6004, 0), (0x6030, 1)))
         self.sample(clock.now_ns())
 
     def true_counts(self, t_ns: int) -> int:
@@ -86,15 +94,20 @@ class SimEncoder(SimNode):
         return p.initial_counts + self._offset + math.floor(p.sign * s * p.counts_per_mm)
 
     def sample(self, t_ns: int) -> int:
+        """6004h and 6030h:1 at ``t_ns`` (6004h from :meth:`true_counts`)."""
+        p = self.params
         counts = self.true_counts(t_ns)
         if self.noise_counts:
             counts += round(self._rng.gauss(0.0, self.noise_counts))
-        modulus = int(self.load(0x6002, 0))
+        d = self.node.data_store.get(0x6002)
+        stored = d.get(0) if d is not None else None
+        if stored is not self._modulus_raw:  # (decoded when the stored bytes change)
+            self._modulus = int(self.load(0x6002, 0))
+            self._modulus_raw = stored
+        modulus = self._modulus
         raw = counts % modulus if modulus > 0 else counts & 0xFFFFFFFF
-        self.store(0x6004, 0, raw)
-        speed = round(self.profile.speed(t_ns * 1e-9) * self.params.counts_per_mm
-                      * self.params.sign)
-        self.store(0x6030, 1, max(-0x8000, min(0x7FFF, speed)))
+        speed = round(self.profile.speed(t_ns * 1e-9) * p.counts_per_mm * p.sign)
+        self.store_all(self._sample_plan, (raw, max(-0x8000, min(0x7FFF, speed))))
         return raw
 
     def on_sync(self, now_ns: int) -> None:

@@ -41,6 +41,15 @@ What python canopen gives and what is added here, and why:
   later: discarded, as CANopenNode does); a device samples at the SYNC's bus time;
 - EMCY producer with 1001h/1003h bookkeeping.
 
+Per SYNC (issue 12: the simulated devices share the controller's process) the work is
+prepared when the configuration changes, not at every frame: each PDO's mapping is compiled
+into a plan when the PDOs are read again (after a write to 1400h-1BFFh or 1007h, an NMT
+change or a reset), the PDOs are indexed by what serves them (a SYNC touches the
+synchronous ones only), :meth:`SlaveEngine.service_event_pdos` returns at once while no
+object changed and no event timer or inhibit time is pending, and
+:meth:`SlaveEngine.next_timer_ns` is cached for the nodes that declare it
+(:attr:`SlaveEngine.cache_timers`) until :meth:`SlaveEngine._retime`.
+
 Subclasses implement the hooks at the end of :class:`SlaveEngine`.
 """
 
@@ -53,7 +62,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from enum import IntEnum
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Any, ClassVar, Protocol
 
 from canopen import LocalNode
 from canopen.objectdictionary import (
@@ -103,6 +112,10 @@ class Nmt(IntEnum):
     PRE_OPERATIONAL = 127
 
 
+# (module constants for the per-SYNC paths: a global instead of a class attribute lookup)
+_INITIALISING, _STOPPED, _OPERATIONAL = Nmt.INITIALISING, Nmt.STOPPED, Nmt.OPERATIONAL
+
+
 def restricted_can_id(can_id: int) -> bool:
     """CiA 301 restricted CAN-IDs (not for SYNC, TIME, EMCY, PDO, SDO): 000h-07Fh,
     101h-180h, 581h-5FFh, 601h-67Fh, 6E0h-6FFh, 701h-7FFh (CANopenNode's
@@ -112,6 +125,17 @@ def restricted_can_id(can_id: int) -> bool:
 
 
 Receiver = Callable[[int, bytes, int], None]
+
+#: :meth:`SlaveEngine.store_plan`: (index, sub, (index, sub), pack, value made an int first)
+#: of each object
+StorePlan = tuple[tuple[int, int, tuple[int, int], Callable[[Any], bytes], bool], ...]
+
+
+class TimerHost(Protocol):
+    """A host that caches the earliest timer of its nodes (the device rack): told by each
+    node whose timers may have changed (:attr:`SlaveEngine.timer_host`)."""
+
+    def retime(self) -> None: ...
 
 
 class SlaveBus(Protocol):
@@ -147,6 +171,12 @@ class PdoChannel:
     dirty: bool = True  # TPDO: a mapped object changed since the last send
     sent: int = 0
     size: int = 0  # [bytes] the mapping's length
+    #: the mapping compiled when the PDO is (re)read (:meth:`SlaveEngine._read_pdo`):
+    #: RPDO: (index, sub, first byte, end byte, (index, sub)) of each object, the dummy
+    #: entries left out; TPDO: (index, sub, padding) of each entry (padding: the zero
+    #: bytes of a dummy entry, else None)
+    rplan: tuple[tuple[int, int, int, int, tuple[int, int]], ...] = ()
+    tplan: tuple[tuple[int, int, bytes | None], ...] = ()
 
 
 @dataclass
@@ -239,6 +269,12 @@ class SlaveEngine:
 
     kind = "node"
 
+    #: :meth:`next_timer_ns` is cached until :meth:`_retime` (True: the subclass's
+    #: ``listening``, ``may_send`` and ``device_timer_ns`` change only inside the engine's
+    #: entry points -- frames, ``on_timer``, ``reset``, ``set_nmt`` -- or where it calls
+    #: :meth:`_retime`; a subclass that cannot say so keeps False: asked every time)
+    cache_timers: ClassVar[bool] = False
+
     def __init__(self, name: str, eds: str | Path | ObjectDictionary, node_id: int,
                  bus: SlaveBus, *, boot_delay_ns: int = 5_000_000,
                  heartbeat_producer: bool = True, sync_cob_id: int | None = 0x80) -> None:
@@ -265,7 +301,25 @@ class SlaveEngine:
         self._consumers: dict[int, _Consumer] = {}
         self.rpdos: dict[int, PdoChannel] = {}
         self.tpdos: list[PdoChannel] = []
+        # the PDOs by what serves them (built with them, _rebuild_pdos): the RPDOs applied
+        # at a SYNC (types 0-240), the TPDOs sent at a SYNC (0-240), the event-driven TPDOs
+        # (254/255) and the TPDOs that send on a change (0, 254/255: their ``dirty``)
+        self._sync_rpdos: list[PdoChannel] = []
+        self._sync_tpdos: list[PdoChannel] = []
+        self._event_tpdos: list[PdoChannel] = []
+        self._change_tpdos: list[PdoChannel] = []
+        #: when service_event_pdos has work without a change [ns] (None: never; see there)
+        self._event_due: int | None = -1
+        #: on_rpdo_data is the engine's own (every value stored: the mapping's plan applied)
+        self._plain_rpdo_data = type(self).on_rpdo_data is SlaveEngine.on_rpdo_data
         self._pdo_dirty = True
+        #: the next timer's cache: (the _due_gen it was computed at, the time); a change of
+        #: the timers increments _due_gen (_retime) -- a count, not a flag, so that a
+        #: change from another thread while it is computed is never overwritten
+        self._due_gen = 0
+        self._due: tuple[int, int | None] = (-1, None)
+        #: told when this node's timers may have changed (a host caching over its nodes)
+        self.timer_host: TimerHost | None = None
         #: the last 1000 EMCYs sent: (code, ns) (a long run's faults do not fill the memory)
         self.emcy_sent: deque[tuple[int, int]] = deque(maxlen=1000)
         self.sync_counter: int | None = None
@@ -352,6 +406,26 @@ class SlaveEngine:
         if d.get(sub) != raw:
             d[sub] = raw
             self._changed.add(key)
+
+    def store_plan(self, keys: tuple[tuple[int, int], ...]) -> StorePlan:
+        """:meth:`store` of the objects ``keys`` (index, sub) compiled once, for
+        :meth:`store_all` (a device's values of every SYNC)."""
+        return tuple((index, sub, (index, sub), *(self._packers.get((index, sub))
+                                                  or self._packer((index, sub))))
+                     for index, sub in keys)
+
+    def store_all(self, plan: StorePlan, values: tuple[Any, ...]) -> None:
+        """:meth:`store` of each value of ``values`` into its object of ``plan``."""
+        ds = self.node.data_store
+        changed = self._changed
+        for (index, sub, key, pack, whole), value in zip(plan, values):
+            raw = pack(int(value)) if whole else pack(value)
+            d = ds.get(index)
+            if d is None:
+                d = ds[index] = {}
+            if d.get(sub) != raw:
+                d[sub] = raw
+                changed.add(key)
 
     def raw(self, index: int, sub: int = 0) -> bytes:
         """An object's current value as bytes (stored, else the EDS default)."""
@@ -481,6 +555,7 @@ class SlaveEngine:
             raise SdoAbortError(ABORT_PDO_MAPPING)
 
     def _after_comm_write(self, index: int, sub: int, value: Any) -> None:
+        self._retime()
         if 0x1400 <= index <= 0x1BFF or index == 0x1007:
             self._pdo_dirty = True
         elif index == 0x1017:
@@ -520,6 +595,7 @@ class SlaveEngine:
     def _on_sdo_frame(self, can_id: int, data: bytes, t: Any) -> None:
         if self.listening() and self.nmt_state in (Nmt.PRE_OPERATIONAL, Nmt.OPERATIONAL):
             self.sdo.on_request(can_id, data, t)
+            self._retime()  # (a write may change what the device's timer depends on)
 
     def _on_nmt(self, can_id: int, data: bytes, t: Any) -> None:
         if not self.listening() or len(data) < 2:
@@ -538,6 +614,7 @@ class SlaveEngine:
             self.set_nmt(Nmt.PRE_OPERATIONAL)
         elif cmd in (0x81, 0x82):
             self.reset(application=cmd == 0x81)
+        self._retime()
 
     def set_nmt(self, state: Nmt) -> None:
         """Enter an NMT state (a command received, or the node's own decision)."""
@@ -545,6 +622,7 @@ class SlaveEngine:
             return
         old = self.nmt_state
         self.nmt_state = state
+        self._retime()
         if state is Nmt.OPERATIONAL:
             self._rebuild_pdos()
             for p in self.tpdos:
@@ -570,11 +648,13 @@ class SlaveEngine:
             self.bus.unsubscribe(p.cob_id, self._on_rpdo)
         self.rpdos.clear()
         self.tpdos.clear()
+        self._index_pdos()
         self.sync_counter = None
         self.on_comm_reset()
         if application:
             self.on_reset()
         self._boot_at = self.clock.now_ns() + self.boot_delay_ns
+        self._retime()
         self.on_nmt(old, Nmt.INITIALISING)
 
     def boot_now(self, send_boot_up: bool = True) -> None:
@@ -583,6 +663,7 @@ class SlaveEngine:
 
     def _boot_up(self, now: int, send_boot_up: bool = True) -> None:
         self._boot_at = None
+        self._retime()
         old = self.nmt_state
         self.nmt_state = Nmt.PRE_OPERATIONAL
         if send_boot_up:
@@ -595,9 +676,11 @@ class SlaveEngine:
     def _schedule_heartbeat(self, now: int) -> None:
         ms = int(self.load(0x1017, 0)) if self.heartbeat_producer and self.has(0x1017) else 0
         self._hb_next = now + ms * 1_000_000 if ms > 0 else None
+        self._retime()
 
     # -- heartbeat consumer ---------------------------------------------------------------------
     def _load_consumers(self) -> None:
+        self._retime()
         for producer in list(self._consumers):
             self.bus.unsubscribe(0x700 + producer, self._on_heartbeat)
         old = self._consumers
@@ -625,6 +708,7 @@ class SlaveEngine:
         c.last_ns = self.clock.now_ns()
         c.state = data[0]
         c.lost = False
+        self._retime()
         if back:
             self.on_heartbeat_back(c.producer)
 
@@ -663,8 +747,19 @@ class SlaveEngine:
                             prev.last_sent_ns, prev.last_data, prev.sent
                         p.sync_count, p.started = prev.sync_count, prev.started
                     self.tpdos.append(p)
+        self._index_pdos()
         self.sync_window_ns = int(self.load(0x1007, 0)) * 1000 if self.has(0x1007) else 0
         self._pdo_dirty = False
+        self._retime()
+
+    def _index_pdos(self) -> None:
+        """The PDOs by what serves them (see ``__init__``), in their order."""
+        self._sync_rpdos = [p for p in self.rpdos.values() if p.transmission <= 240]
+        self._sync_tpdos = [p for p in self.tpdos if p.transmission <= 240]
+        self._event_tpdos = [p for p in self.tpdos if p.transmission >= 254]
+        self._change_tpdos = [p for p in self.tpdos
+                              if p.transmission == 0 or p.transmission >= 254]
+        self._event_due = -1  # (the new TPDOs are dirty: served at the next service)
 
     def _read_pdo(self, kind: str, comm: int) -> PdoChannel | None:
         if int(self.load(comm, 1)) & INVALID:
@@ -680,14 +775,24 @@ class SlaveEngine:
         inhibit = int(self.load(comm, 3)) * 100_000 if tpdo and self.has(comm, 3) else 0
         event = int(self.load(comm, 5)) * 1_000_000 if tpdo and self.has(comm, 5) else 0
         start = int(self.load(comm, 6)) if tpdo and self.has(comm, 6) else 0
+        rplan = []
+        offset = 0
+        for index, sub, bits in mapping:
+            n = bits // 8
+            if index >= 0x1000:
+                rplan.append((index, sub, offset, offset + n, (index, sub)))
+            offset += n
+        tplan = tuple((index, sub, bytes(bits // 8) if index < 0x1000 else None)
+                      for index, sub, bits in mapping)
         return PdoChannel(kind, comm - (0x1800 if tpdo else 0x1400) + 1,
                           int(self.load(comm, 1)) & 0x7FF, int(self.load(comm, 2)), inhibit,
                           event, start, mapping,
                           objects=frozenset((i, s) for i, s, _ in mapping if i >= 0x1000),
-                          started=not start, size=sum(bits for _, _, bits in mapping) // 8)
+                          started=not start, size=sum(bits for _, _, bits in mapping) // 8,
+                          rplan=tuple(rplan), tplan=tplan)
 
     def _on_rpdo(self, can_id: int, data: bytes, t: Any) -> None:
-        if not self.listening() or self.nmt_state is not Nmt.OPERATIONAL:
+        if not self.listening() or self.nmt_state is not _OPERATIONAL:
             return
         pdo = self.rpdos.get(can_id)
         if pdo is None:
@@ -696,34 +801,39 @@ class SlaveEngine:
             pdo.pending = bytes(data)
         else:
             self._apply_rpdo(pdo, bytes(data))
+            self._retime()  # (on_rpdo acted at once)
 
     def _apply_rpdo(self, pdo: PdoChannel, data: bytes) -> None:
         if len(data) < pdo.size:
             return  # (CiA 301: a too short PDO is not processed; EMCY 8210h in real nodes)
-        values: list[tuple[int, int, bytes]] = []
-        offset = 0
-        for index, sub, bits in pdo.mapping:
-            n = bits // 8
-            if index >= 0x1000:
-                values.append((index, sub, data[offset:offset + n]))
-            offset += n
-        accepted = self.on_rpdo_data(pdo.number, values)
         store = self.node.data_store
-        for index, sub, raw in accepted:
-            d = store.get(index)
-            if d is None:
-                d = store[index] = {}
-            if d.get(sub) != raw:
-                d[sub] = raw
-                self._changed.add((index, sub))
+        changed = self._changed
+        if self._plain_rpdo_data:  # (every value stored: the plan applied directly)
+            for index, sub, start, end, key in pdo.rplan:
+                raw = data[start:end]
+                d = store.get(index)
+                if d is None:
+                    d = store[index] = {}
+                if d.get(sub) != raw:
+                    d[sub] = raw
+                    changed.add(key)
+        else:
+            values = [(index, sub, data[start:end]) for index, sub, start, end, _ in pdo.rplan]
+            for index, sub, raw in self.on_rpdo_data(pdo.number, values):
+                d = store.get(index)
+                if d is None:
+                    d = store[index] = {}
+                if d.get(sub) != raw:
+                    d[sub] = raw
+                    changed.add((index, sub))
         self.on_rpdo(pdo.number, pdo.objects)
 
     def tpdo_data(self, pdo: PdoChannel) -> bytes:
         store = self.node.data_store
         parts = []
-        for index, sub, bits in pdo.mapping:
-            if index < 0x1000:
-                parts.append(bytes(bits // 8))  # a dummy entry
+        for index, sub, padding in pdo.tplan:
+            if padding is not None:
+                parts.append(padding)  # a dummy entry
                 continue
             d = store.get(index)  # (raw() written out: the stored value, else the default)
             raw = d.get(sub) if d is not None else None
@@ -736,6 +846,8 @@ class SlaveEngine:
         pdo.last_sent_ns = now
         pdo.sent += 1
         pdo.dirty = False
+        if pdo.event_ns:
+            self._retime()  # (its event timer starts again)
 
     def _on_sync_frame(self, can_id: int, data: bytes, t: Any) -> None:
         if not self.listening():
@@ -776,7 +888,10 @@ class SlaveEngine:
         passed: a late answer is never taken for the next SYNC's (counted in
         ``sync_tpdos_discarded``).  Likewise when the host has the next SYNC already
         (:attr:`next_sync_ns`): a real device would have answered before it."""
-        if not self.listening() or self.nmt_state in (Nmt.INITIALISING, Nmt.STOPPED):
+        if not self.listening():
+            return
+        nmt = self.nmt_state
+        if nmt is _INITIALISING or nmt is _STOPPED:
             return
         if self._pdo_dirty:
             self._rebuild_pdos()
@@ -785,9 +900,9 @@ class SlaveEngine:
         t_sync = now if t_ns is None or t_ns > now else t_ns
         window = self.sync_window_ns
         outside = (window > 0 and now - t_sync > window) or self.next_sync_ns is not None
-        operational = self.nmt_state is Nmt.OPERATIONAL
+        operational = nmt is _OPERATIONAL
         if operational:
-            for pdo in self.rpdos.values():
+            for pdo in self._sync_rpdos:  # (the RPDOs of types 0-240: only they wait)
                 if pdo.pending is not None:
                     data, pdo.pending = pdo.pending, None
                     self._apply_rpdo(pdo, data)
@@ -796,12 +911,10 @@ class SlaveEngine:
             self._changed.clear()
             return
         changed = self._changed
-        for pdo in self.tpdos:
+        for pdo in self._sync_tpdos:  # (types 0-240)
             t = pdo.transmission
-            if t > 240:
-                continue
-            if changed and not changed.isdisjoint(pdo.objects):
-                pdo.dirty = True
+            if t == 0 and changed and not changed.isdisjoint(pdo.objects):
+                pdo.dirty = True  # (read by type 0 only)
             if not pdo.started:  # (CANopenNode: the first at the counter = 18xxh:6)
                 if counter is not None and counter != pdo.sync_start:
                     continue
@@ -838,14 +951,20 @@ class SlaveEngine:
         if self._pdo_dirty:
             self._rebuild_pdos()
         changed = self._changed
-        if self.nmt_state is not Nmt.OPERATIONAL or not self.may_send("pdo"):
+        if self.nmt_state is not _OPERATIONAL or not self.may_send("pdo"):
             changed.clear()
             return
-        for pdo in self.tpdos:
-            if changed and not changed.isdisjoint(pdo.objects):
-                pdo.dirty = True
-            if pdo.transmission < 254:
-                continue
+        if changed:
+            for pdo in self._change_tpdos:  # (``dirty`` is read by types 0, 254, 255 only)
+                if not changed.isdisjoint(pdo.objects):
+                    pdo.dirty = True
+            changed.clear()
+        else:
+            due = self._event_due
+            if due is None or now < due:
+                return  # (no change, no dirty event TPDO, no event timer expired)
+        events = self._event_tpdos
+        for pdo in events:
             timer = bool(pdo.event_ns) and (pdo.last_sent_ns is None
                                             or now - pdo.last_sent_ns >= pdo.event_ns)
             if not (pdo.dirty or timer):
@@ -856,10 +975,42 @@ class SlaveEngine:
             pdo.dirty = False
             if data != pdo.last_data or timer:
                 self._send_tpdo(pdo, data, now)
-        changed.clear()
+        # when a service without a change has something to do: at once while a TPDO is
+        # dirty (waiting for its inhibit time) or never sent with an event timer, else at
+        # the earliest event timer
+        due = None
+        for pdo in events:
+            last = pdo.last_sent_ns
+            if pdo.dirty or (pdo.event_ns and last is None):
+                due = -1
+                break
+            if pdo.event_ns and last is not None:
+                t = last + pdo.event_ns
+                if due is None or t < due:
+                    due = t
+        self._event_due = due
 
     # -- timers -----------------------------------------------------------------------------------
+    def _retime(self) -> None:
+        """The node's timers may have changed: :meth:`next_timer_ns` computes them again."""
+        self._due_gen += 1
+        host = self.timer_host
+        if host is not None:
+            host.retime()
+
     def next_timer_ns(self) -> int | None:
+        """When :meth:`on_timer` is due next [ns] (None: no timer); cached with
+        :attr:`cache_timers` (asked several times per frame batch by the hosts)."""
+        c = self._due
+        gen = self._due_gen
+        if c[0] == gen:
+            return c[1]
+        t = self._next_timer()
+        if self.cache_timers:
+            self._due = (gen, t)
+        return t
+
+    def _next_timer(self) -> int | None:
         if not self.listening():
             return None
         # (the earliest of the timers, without a list: asked after every frame batch)
@@ -898,6 +1049,7 @@ class SlaveEngine:
                 self.on_heartbeat_lost(c.producer)
         self.device_timer(now)
         self.service_event_pdos(now)
+        self._retime()
 
     def close(self) -> None:
         """Leave the bus (unsubscribe everything)."""

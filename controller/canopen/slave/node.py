@@ -37,15 +37,22 @@ __all__ = ["ABORT_DEVICE_STATE", "EMCY_SYNC_LENGTH", "ABORT_PARAM_INCOMPATIBLE",
 
 
 class SimNode(SlaveEngine):
-    """Base of the simulated devices (one node on the rack's port)."""
+    """Base of the simulated devices (one node on the rack's port).
+
+    Its timers are cached (:attr:`SlaveEngine.cache_timers`): what ``listening`` and
+    ``may_send`` read that a timer depends on (:attr:`powered`, :attr:`silent`,
+    :attr:`pdos_muted`) are properties that retime the node when set; a subclass with a
+    ``device_timer_ns`` calls ``_retime`` where its inputs change outside the engine's
+    entry points."""
 
     kind = "node"
+    cache_timers = True
 
     def __init__(self, name: str, eds: str | Path, node_id: int, bus: SlaveBus,
                  boot_delay_ns: int = 5_000_000) -> None:
-        self.powered = True
-        self.silent = False
-        self.pdos_muted = False
+        self._powered = True
+        self._silent = False
+        self._pdos_muted = False
         self.sdo_muted = False
         self.heartbeat_enabled = True
         self._sdo_rejects: dict[tuple[int, int], int] = {}
@@ -56,14 +63,41 @@ class SimNode(SlaveEngine):
         super().__init__(name, eds, node_id, bus, boot_delay_ns=boot_delay_ns)
 
     # -- fault injection -----------------------------------------------------------------
+    @property
+    def powered(self) -> bool:
+        return self._powered
+
+    @powered.setter
+    def powered(self, on: bool) -> None:
+        self._powered = on
+        self._retime()  # (after the change: a timer computed meanwhile is not kept)
+
+    @property
+    def silent(self) -> bool:
+        return self._silent
+
+    @silent.setter
+    def silent(self, on: bool) -> None:
+        self._silent = on
+        self._retime()
+
+    @property
+    def pdos_muted(self) -> bool:
+        return self._pdos_muted
+
+    @pdos_muted.setter
+    def pdos_muted(self, on: bool) -> None:
+        self._pdos_muted = on
+        self._retime()
+
     def listening(self) -> bool:
-        return self.powered
+        return self._powered
 
     def may_send(self, kind: str) -> bool:
-        if not self.powered or self.silent:
+        if not self._powered or self._silent:
             return False
         if kind == "pdo":
-            return not self.pdos_muted
+            return not self._pdos_muted
         if kind == "hb":
             return self.heartbeat_enabled
         if kind == "sdo":
@@ -127,5 +161,5 @@ class SimNode(SlaveEngine):
         self.powered = False
 
     def _on_sdo_frame(self, can_id: int, data: bytes, t: Any) -> None:
-        if not self.sdo_muted and not self.silent:
+        if not self.sdo_muted and not self._silent:
             super()._on_sdo_frame(can_id, data, t)

@@ -39,14 +39,27 @@ class DeviceRack:
         self.port = Port(bus, clock, frame_time)
         self.devices: dict[str, SimNode] = {}
         self._ahead: deque[can.Message] = deque()  # frames read ahead (frame_time)
+        #: the devices' SYNC COB-IDs (fixed when a device is added)
+        self._sync_cobs: set[int] = set()
+        #: the earliest device timer, cached as the devices' own (SlaveEngine.next_timer_ns):
+        #: (the _due_gen it was computed at, the time); a device whose timers may have
+        #: changed calls retime()
+        self._due_gen = 0
+        self._due: tuple[int, int | None] = (-1, None)
+        self._cache_timers = True
 
     def add(self, device: SimNode) -> SimNode:
         self.devices[device.name] = device
+        if device.sync_cob_id is not None:
+            self._sync_cobs.add(device.sync_cob_id)
+        device.timer_host = self
+        self._cache_timers = all(d.cache_timers for d in self.devices.values())
+        self.retime()
         return device
 
-    @property
-    def _sync_cobs(self) -> set[int]:
-        return {d.sync_cob_id for d in self.devices.values() if d.sync_cob_id is not None}
+    def retime(self) -> None:
+        """A device's timers may have changed (see :meth:`next_timer_ns`)."""
+        self._due_gen += 1
 
     def __getitem__(self, name: str) -> SimNode:
         return self.devices[name]
@@ -82,8 +95,15 @@ class DeviceRack:
                 port.handle(m)
 
     def next_timer_ns(self) -> int | None:
+        c = self._due
+        gen = self._due_gen
+        if c[0] == gen:
+            return c[1]
         due = [t for d in self.devices.values() if (t := d.next_timer_ns()) is not None]
-        return min(due) if due else None
+        best = min(due) if due else None
+        if self._cache_timers:
+            self._due = (gen, best)
+        return best
 
     def on_timer(self, now_ns: int) -> None:
         for d in self.devices.values():
