@@ -525,3 +525,21 @@ def test_cached_timers_follow_every_change(bus):
     check()
     m.run(10)
     check()
+
+
+def test_a_drive_publishes_its_model_again_over_any_other_write(bus):
+    """The drive packs a published value (6041h, 6064h, ...) only when it changed; an object
+    written by someone else (the application's store, a reset) still gets the model's value
+    at the next SYNC."""
+    world, m = bus
+    drive = enabled_x(world, m, 4_000_000)
+    m.sync({0x20B: rpdo(0x0F, 4_000_000)})
+    x = round(drive.x)
+    assert drive.load(0x6064) == x
+    drive.store(0x6064, 0, x + 12345)
+    drive.store(0x60F4, 0, 777)
+    m.sync({0x20B: rpdo(0x0F, 4_000_000)})
+    assert drive.load(0x6064) == round(drive.x) == x and drive.load(0x60F4) == 0
+    assert m.of(0x18B)[-1][2:6] == struct.pack("<i", x)  # (TPDO1: 6041h, 6064h)
+    m.nmt(0x81, 11)  # reset node: every object to its default, then the model again
+    assert drive.load(0x6064) == x

@@ -310,7 +310,11 @@ class SimDrive(SimNode):
             self._load_cfg()
         mode = self._mode if st is State.OPERATION_ENABLED else None
         if mode == cia402.MODE_CSP:
-            d = self._limited_demand()
+            if self._no_switches:  # (_limited_demand without a limit switch)
+                d = self.demand
+                self._internal_limit = False
+            else:
+                d = self._limited_demand()
             if dt == self._dt:  # (the period's factors computed with the parameters)
                 lag, lim = self._lag, self._step_max
             else:

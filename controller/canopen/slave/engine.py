@@ -126,9 +126,19 @@ def restricted_can_id(can_id: int) -> bool:
 
 Receiver = Callable[[int, bytes, int], None]
 
-#: :meth:`SlaveEngine.store_plan`: (index, sub, (index, sub), pack, value made an int first)
-#: of each object
-StorePlan = tuple[tuple[int, int, tuple[int, int], Callable[[Any], bytes], bool], ...]
+_NOTHING = object()  #: no value stored by a StorePlan yet
+
+
+class StorePlan:
+    """:meth:`SlaveEngine.store_plan`: (index, sub, (index, sub), pack, value made an int
+    first) of each object, and (value, the bytes object stored) of each as last stored."""
+
+    __slots__ = ("items", "last")
+
+    def __init__(self, items: tuple[tuple[int, int, tuple[int, int],
+                                          Callable[[Any], bytes], bool], ...]) -> None:
+        self.items = items
+        self.last: list[tuple[Any, Any]] = [(_NOTHING, _NOTHING)] * len(items)
 
 
 class TimerHost(Protocol):
@@ -308,6 +318,8 @@ class SlaveEngine:
         self._sync_tpdos: list[PdoChannel] = []
         self._event_tpdos: list[PdoChannel] = []
         self._change_tpdos: list[PdoChannel] = []
+        #: the objects the _change_tpdos map (a change of another object makes none dirty)
+        self._watched: frozenset[tuple[int, int]] = frozenset()
         #: when service_event_pdos has work without a change [ns] (None: never; see there)
         self._event_due: int | None = -1
         #: on_rpdo_data is the engine's own (every value stored: the mapping's plan applied)
@@ -410,22 +422,41 @@ class SlaveEngine:
     def store_plan(self, keys: tuple[tuple[int, int], ...]) -> StorePlan:
         """:meth:`store` of the objects ``keys`` (index, sub) compiled once, for
         :meth:`store_all` (a device's values of every SYNC)."""
-        return tuple((index, sub, (index, sub), *(self._packers.get((index, sub))
-                                                  or self._packer((index, sub))))
-                     for index, sub in keys)
+        return StorePlan(tuple((index, sub, (index, sub), *(self._packers.get((index, sub))
+                                                            or self._packer((index, sub))))
+                               for index, sub in keys))
 
     def store_all(self, plan: StorePlan, values: tuple[Any, ...]) -> None:
-        """:meth:`store` of each value of ``values`` into its object of ``plan``."""
+        """:meth:`store` of each value of ``values`` into its object of ``plan``.
+
+        An integer value equal to the one this plan stored last is not packed again while
+        the object still holds the very bytes object stored then (anything else that wrote
+        it -- :meth:`store`, an SDO write, an RPDO, a reset -- put another one there).  Each
+        (value, bytes) pair is kept as one tuple: with two threads storing at once
+        (``cantrack sim-devices``' injections beside its device thread) no pair is torn."""
         ds = self.node.data_store
         changed = self._changed
-        for (index, sub, key, pack, whole), value in zip(plan, values):
-            raw = pack(int(value)) if whole else pack(value)
+        last = plan.last
+        i = -1
+        for (index, sub, key, pack, whole), value in zip(plan.items, values):
+            i += 1
             d = ds.get(index)
             if d is None:
                 d = ds[index] = {}
-            if d.get(sub) != raw:
+            held = d.get(sub)
+            if whole:
+                kept = last[i]
+                if held is kept[1] and value == kept[0]:
+                    continue
+                raw = pack(int(value))
+            else:
+                raw = pack(value)
+            if held != raw:
                 d[sub] = raw
                 changed.add(key)
+                held = raw
+            if whole:
+                last[i] = (value, held)
 
     def raw(self, index: int, sub: int = 0) -> bytes:
         """An object's current value as bytes (stored, else the EDS default)."""
@@ -759,6 +790,7 @@ class SlaveEngine:
         self._event_tpdos = [p for p in self.tpdos if p.transmission >= 254]
         self._change_tpdos = [p for p in self.tpdos
                               if p.transmission == 0 or p.transmission >= 254]
+        self._watched = frozenset().union(*(p.objects for p in self._change_tpdos))
         self._event_due = -1  # (the new TPDOs are dirty: served at the next service)
 
     def _read_pdo(self, kind: str, comm: int) -> PdoChannel | None:
@@ -841,7 +873,8 @@ class SlaveEngine:
         return b"".join(parts)
 
     def _send_tpdo(self, pdo: PdoChannel, data: bytes, now: int) -> None:
-        self._send("pdo", pdo.cob_id, data)
+        if self.may_send("pdo"):  # (_send written out)
+            self.bus.send(pdo.cob_id, data)
         pdo.last_data = data
         pdo.last_sent_ns = now
         pdo.sent += 1
@@ -852,6 +885,12 @@ class SlaveEngine:
     def _on_sync_frame(self, can_id: int, data: bytes, t: Any) -> None:
         if not self.listening():
             return
+        c = self._sync_len  # (_sync_length_ok's answer while 1019h is the same object)
+        if c is not None and (c[1] is None or len(data) == c[1]):
+            d = self.node.data_store.get(0x1019)
+            if c[0] is (d.get(0) if d is not None else None):
+                self.process_sync(data[0] if data else None, t)
+                return
         if not self._sync_length_ok(len(data)):
             self.sync_counter = data[0] if data else None
             return
@@ -954,12 +993,13 @@ class SlaveEngine:
         if self.nmt_state is not _OPERATIONAL or not self.may_send("pdo"):
             changed.clear()
             return
-        if changed:
+        if changed and not changed.isdisjoint(self._watched):
             for pdo in self._change_tpdos:  # (``dirty`` is read by types 0, 254, 255 only)
                 if not changed.isdisjoint(pdo.objects):
                     pdo.dirty = True
             changed.clear()
         else:
+            changed.clear()  # (no mapped object among them)
             due = self._event_due
             if due is None or now < due:
                 return  # (no change, no dirty event TPDO, no event timer expired)
