@@ -56,3 +56,85 @@ def test_a_closed_bus_is_a_can_error_naming_the_cob_id():
     with pytest.raises(CanError, match="cannot send 0x181"):
         port.send(0x181, b"\x00")
     assert port.sent == 0
+
+
+def test_held_sends_reach_the_receivers_at_delivery_in_order():
+    """hold_sends: the holding thread's frames wait for deliver_held (in send order, with
+    their send times); another thread's send goes out at once; release_sends delivers
+    what is held and ends the hold."""
+    import threading
+
+    channel = f"vbus-held-{time.perf_counter_ns()}"
+    sender = virtual_bus(channel)
+    rx = virtual_bus(channel)
+    try:
+        assert isinstance(sender, FastVirtualBus)
+        port = Port(sender, SteppedClock(2_000_000_000))
+        sender.hold_sends()
+        port.send(0x181, b"\x01")
+        sender.send(can.Message(arbitration_id=0x182, data=b"\x02", is_extended_id=False,
+                                timestamp=2.0))
+        assert rx.recv(0) is None  # held
+        other = threading.Thread(target=lambda: sender.send(can.Message(
+            arbitration_id=0x183, data=b"\x03", is_extended_id=False, timestamp=2.5)))
+        other.start()
+        other.join()
+        m = rx.recv(0)
+        assert m is not None and m.arbitration_id == 0x183  # not the holder's: at once
+        assert rx.recv(0) is None
+        sender.deliver_held()
+        got = [rx.recv(0), rx.recv(0)]
+        assert [(m.arbitration_id, bytes(m.data), m.timestamp) for m in got if m] == \
+            [(0x181, b"\x01", 2.0), (0x182, b"\x02", 2.0)]
+        assert rx.recv(0) is None
+        port.send(0x184, b"\x04")
+        sender.release_sends()
+        m = rx.recv(0)
+        assert m is not None and m.arbitration_id == 0x184
+        port.send(0x185, b"\x05")  # no longer held
+        m = rx.recv(0)
+        assert m is not None and m.arbitration_id == 0x185
+    finally:
+        sender.shutdown()
+        rx.shutdown()
+
+
+def test_a_device_threads_answers_go_out_when_it_is_about_to_wait():
+    """DeviceThread on our virtual bus: what the endpoint sends while it serves a batch
+    reaches the other receivers only once the batch is done (then all of it)."""
+    from controller.canopen.io.clock import RealtimeClock
+    from controller.canopen.io.transport import DeviceThread
+
+    channel = f"vbus-thread-{time.perf_counter_ns()}"
+    controller = virtual_bus(channel)
+    seen_while_serving: list[bool] = []
+
+    class Echo:
+        def __init__(self) -> None:
+            self.bus = virtual_bus(channel)
+            self.port = Port(self.bus, RealtimeClock())
+
+        def handle(self, msg: can.Message) -> None:
+            self.port.send(0x181, b"\x01")
+            self.port.send(0x281, b"\x02")
+            seen_while_serving.append(controller.recv(0) is not None)
+
+        def next_timer_ns(self) -> int | None:
+            return None
+
+        def on_timer(self, now_ns: int) -> None:
+            pass
+
+    echo = Echo()
+    thread = DeviceThread(echo, RealtimeClock()).start()
+    try:
+        Port(controller, RealtimeClock()).send(0x80, b"")
+        first = controller.recv(2.0)
+        second = controller.recv(0)
+        assert first is not None and second is not None
+        assert (first.arbitration_id, second.arbitration_id) == (0x181, 0x281)
+        assert seen_while_serving == [False]
+    finally:
+        thread.stop()
+        echo.bus.shutdown()
+        controller.shutdown()

@@ -431,10 +431,21 @@ class DeviceThread:
     def _run(self) -> None:
         ep = self.endpoint
         clock = self.clock
-        recv = ep.bus.recv
+        bus = ep.bus
+        recv = bus.recv
+        # on our virtual bus the batch's answers go out together, just before the wait
+        # (FastVirtualBus.hold_sends: the controller is woken once per burst, not by its
+        # first frame while this thread still holds the GIL)
+        fast = bus if isinstance(bus, FastVirtualBus) else None
+        deliver = None
+        if fast is not None:
+            fast.hold_sends()
+            deliver = fast.deliver_held
         timeout = 0.0
         try:
             while not self._stop.is_set():
+                if deliver is not None:
+                    deliver()
                 msg = recv(timeout)
                 while msg is not None:  # the whole batch before looking at the timers
                     ep.handle(msg)
@@ -448,6 +459,9 @@ class DeviceThread:
                     max(0.0, min(self.max_block_s, (due - now) * 1e-9))
         except BaseException as exc:  # reported by stop()
             self.error = exc
+        finally:
+            if fast is not None:
+                fast.release_sends()
 
     def stop(self) -> None:
         self._stop.set()

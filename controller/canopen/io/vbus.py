@@ -18,12 +18,18 @@ changes only those two things and stays a ``VirtualBus`` on the same channels (a
   whether it is empty instead of raising and catching ``queue.Empty``;
 - :meth:`FastVirtualBus.send_frame` sends a standard data frame from its COB-ID, data and
   message time (what :class:`~.transport.Port` sends): the receivers' messages are built
-  from them, with no sender's :class:`can.Message` in between.
+  from them, with no sender's :class:`can.Message` in between;
+- :meth:`FastVirtualBus.hold_sends`: what one thread (the device thread) sends is kept and
+  delivered together when it is about to wait (:meth:`~FastVirtualBus.deliver_held`): a
+  receiver blocked on its queue (the controller waiting for the devices' TPDOs) is woken
+  once, when the GIL is about to be free, not by the first frame of a burst while the
+  sender still runs (it woke, then slept again waiting for the GIL).
 """
 
 from __future__ import annotations
 
 import queue
+import threading
 import time
 from typing import Any
 
@@ -32,6 +38,7 @@ from can.interfaces import virtual as _virtual
 
 _new = can.Message.__new__
 _Message = can.Message
+_get_ident = threading.get_ident
 
 
 class FastVirtualBus(_virtual.VirtualBus):
@@ -44,6 +51,30 @@ class FastVirtualBus(_virtual.VirtualBus):
             i = next(i for i, q in enumerate(self.channel) if q is self.queue)
             self.channel[i] = fast  # type: ignore[call-overload]  # (SimpleQueue: same API)
         self.queue = fast  # type: ignore[assignment]
+        #: the thread whose sends are held (:meth:`hold_sends`; None: every send goes out)
+        self._holder: int | None = None
+        #: its sends not delivered yet: (receiver's queue, message), in send order
+        self._held: list[tuple[queue.Queue[can.Message], can.Message]] = []
+
+    def hold_sends(self) -> None:
+        """From now on what the calling thread sends on this bus reaches the receivers at
+        its next :meth:`deliver_held` (each frame keeps its own timestamp, the send time);
+        other threads' sends go out at once.  For a thread that serves frames in batches
+        and calls :meth:`deliver_held` before each wait (:class:`~.transport.DeviceThread`)."""
+        self._holder = _get_ident()
+
+    def deliver_held(self) -> None:
+        """Put the held frames into their receivers' queues (in send order)."""
+        held = self._held
+        if held:
+            self._held = []
+            for bus_queue, m in held:
+                bus_queue.put(m)
+
+    def release_sends(self) -> None:
+        """Deliver what is held; every send goes out at once again."""
+        self._holder = None
+        self.deliver_held()
 
     def send(self, msg: can.Message, timeout: float | None = None) -> None:
         if not self._open:  # (VirtualBus._check_if_open's test, its error when closed)
@@ -51,6 +82,8 @@ class FastVirtualBus(_virtual.VirtualBus):
         timestamp = msg.timestamp if self.preserve_timestamps else time.time()
         own = self.queue
         data = msg.data
+        held = self._held if self._holder is not None and self._holder == _get_ident() \
+            else None
         for bus_queue in self.channel:
             if bus_queue is own and not self.receive_own_messages:
                 continue
@@ -67,7 +100,10 @@ class FastVirtualBus(_virtual.VirtualBus):
             m.is_rx = bus_queue is not own
             m.bitrate_switch = msg.bitrate_switch
             m.error_state_indicator = msg.error_state_indicator
-            bus_queue.put(m)
+            if held is None:
+                bus_queue.put(m)
+            else:
+                held.append((bus_queue, m))
 
     def send_frame(self, can_id: int, data: bytes | bytearray, timestamp: float) -> None:
         """Send the standard (11-bit) data frame ``can_id`` with ``data`` at message time
@@ -81,6 +117,8 @@ class FastVirtualBus(_virtual.VirtualBus):
         own = self.queue
         channel_id = self.channel_id
         dlc = len(data)
+        held = self._held if self._holder is not None and self._holder == _get_ident() \
+            else None
         for bus_queue in self.channel:
             if bus_queue is own and not self.receive_own_messages:
                 continue
@@ -97,7 +135,10 @@ class FastVirtualBus(_virtual.VirtualBus):
             m.is_rx = bus_queue is not own
             m.bitrate_switch = False
             m.error_state_indicator = False
-            bus_queue.put(m)
+            if held is None:
+                bus_queue.put(m)
+            else:
+                held.append((bus_queue, m))
 
     def recv(self, timeout: float | None = None) -> can.Message | None:
         if self._filters is not None:
