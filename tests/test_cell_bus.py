@@ -554,7 +554,12 @@ def test_cantrack_run_runs_the_cell_against_sim_devices(tmp_path, capsys):
     assert "items placed" not in out                       # (the cell prints its own items)
     end = lines[-1]
     assert end["type"] == "end" and end["exit_code"] == 0
-    assert end["robots"]["r1"]["caught"] == 1 and end["robots"]["r2"]["caught"] == 1
+    items = [{k: d[k] for k in ("robot", "item", "status", "trigger_s", "engaged_s", "synced_s")}
+             for d in lines if d["type"] == "item"]
+    assert end["robots"]["r1"]["caught"] == 1 and end["robots"]["r2"]["caught"] == 1, (
+        f"robots {end['robots']}; items {items}; overruns "
+        f"{end.get('timing', {}).get('overruns')}; events "
+        f"{[(d['cycle'], d['source'], d['kind']) for d in lines if d['type'] == 'event']}")
     assert {(d["robot"], d["item"]) for d in lines if d["type"] == "item"} == {
         ("r1", 1), ("r1", 2), ("r2", 1), ("r2", 2)}
 
