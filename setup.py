@@ -35,7 +35,11 @@ from setuptools import setup
 from setuptools.command.build_ext import build_ext
 
 HERE = Path(__file__).resolve().parent
-TRACKING = HERE / "controller" / "tracking"
+CONTROLLER = HERE / "controller"
+TRACKING = CONTROLLER / "tracking"
+#: the compiled packages (directories of ``controller/``): the cycle's per-sample path
+#: (tracking core, conveyor model, kinematics), one group so that their calls stay native
+PACKAGES = ("tracking", "conveyor", "conveyor/frames", "kinematics")
 MANIFEST = "_native_manifest.json"
 #: the mypyc group: one shared library ``controller/tracking/_core__mypyc.*.so`` beside the
 #: modules' small import shims
@@ -61,22 +65,32 @@ def _warn(message: str) -> None:
           file=sys.stderr)
 
 
-#: not compiled: the package (it chooses compiled or pure) and the two numpy-array modules
-#: off the per-sample path (batch stepping, trace metrics), where mypyc gains nothing
-PURE_ONLY = {"__init__.py", "batch.py", "metrics.py"}
+#: not compiled (besides the packages' ``__init__.py``: tracking's chooses compiled or pure):
+#: the two numpy-array modules off the per-sample path (batch stepping, trace metrics), where
+#: mypyc gains nothing, and the conveyor's exceptions (mypyc cannot subclass builtins)
+PURE_ONLY = {"tracking/batch.py", "tracking/metrics.py", "conveyor/errors.py"}
 
 
 def _sources() -> list[Path]:
-    return sorted(p for p in TRACKING.glob("*.py") if p.name not in PURE_ONLY)
+    return sorted(p for package in PACKAGES for p in (CONTROLLER / package).glob("*.py")
+                  if p.name != "__init__.py" and _name(p) not in PURE_ONLY)
 
 
-def _remove_build(directory: Path = TRACKING) -> None:
-    """The compiled files and the manifest a build left in ``directory`` (by default the
-    checkout's, which an earlier in-place (editable) build left)."""
-    for path in list(directory.glob("*.so")) + list(directory.glob("*.pyd")) + \
-            [directory / MANIFEST]:
-        if path.exists():
-            path.unlink()
+def _name(path: Path) -> str:
+    """A module's path relative to ``controller/`` (``conveyor/frames/linear.py``): its name
+    in ``PURE_ONLY`` and the manifest."""
+    return path.relative_to(CONTROLLER).as_posix()
+
+
+def _remove_build(root: Path = CONTROLLER) -> None:
+    """The compiled files and the manifest a build left under ``root`` (the ``controller``
+    directory; by default the checkout's, which an earlier in-place (editable) build left)."""
+    for package in PACKAGES:
+        directory = root / package
+        for path in list(directory.glob("*.so")) + list(directory.glob("*.pyd")) + \
+                [directory / MANIFEST]:
+            if path.exists():
+                path.unlink()
 
 
 def _write_manifest(directory: Path, record: dict | None = None) -> None:
@@ -98,11 +112,11 @@ COMPILE_ENV = ("CC", "CXX", "CFLAGS", "CPPFLAGS", "LDFLAGS", "LDSHARED", "ARCHFL
 
 def _read_modules() -> list[Path]:
     """The modules mypy reads beside the compiled ones (the C code builds in their types):
-    the package's pure modules and the base layer, the only one the tracking layer may import
+    the compiled packages' pure modules and the base layer, the only other one they import
     (docs/architecture.md "Layers": ``controller/*.py``)."""
     compiled = set(_sources())
-    return sorted({p for p in TRACKING.glob("*.py") if p not in compiled}
-                  | set((HERE / "controller").glob("*.py")))
+    return sorted({p for package in PACKAGES for p in (CONTROLLER / package).glob("*.py")
+                   if p not in compiled} | set(CONTROLLER.glob("*.py")))
 
 
 def _sha256(path: Path) -> str:
@@ -128,7 +142,7 @@ def _build_record(mypy_version: str | None = None) -> dict:
     beside the compiled ones (``_read_modules``)."""
     return {
         "group": GROUP,
-        "sources": {p.name: _sha256(p) for p in _sources()},
+        "sources": {_name(p): _sha256(p) for p in _sources()},
         "build": {
             "python": sys.version,
             "ext_suffix": sysconfig.get_config_var("EXT_SUFFIX"),
@@ -177,8 +191,9 @@ def _in_place_build_stale(directory: Path, record: dict) -> str | None:
         if then.get(name) != now.get(name):
             return f"{name}: changed since the last build (mypy reads its types)"
     suffix = record["build"]["ext_suffix"]
-    for stem in ["_core__mypyc"] + sorted(name[:-3] for name in record["sources"]):
-        if not (directory / (stem + suffix)).is_file():
+    # (the sources' names are relative to controller/, the manifest's directory's parent)
+    for stem in ["tracking/_core__mypyc"] + sorted(name[:-3] for name in record["sources"]):
+        if not (directory.parent / (stem + suffix)).is_file():
             return f"{stem}{suffix}: missing"
     return None
 
@@ -200,14 +215,14 @@ class BuildExt(build_ext):
             self._drop_outputs()
             return
         for target in self._output_dirs():
-            _write_manifest(target, self.record)
+            _write_manifest(target / "tracking", self.record)
 
     def _output_dirs(self) -> set[Path]:
-        """Where this build puts the compiled modules: the build tree, and the checkout for
-        an in-place (editable) build."""
-        directories = {Path(self.build_lib) / "controller" / "tracking"}
+        """Where this build puts the compiled modules (their ``controller`` directory): the
+        build tree, and the checkout for an in-place (editable) build."""
+        directories = {Path(self.build_lib) / "controller"}
         if self.inplace or getattr(self, "editable_mode", False):
-            directories.add(TRACKING)
+            directories.add(CONTROLLER)
         return directories
 
     def _drop_outputs(self) -> None:

@@ -627,9 +627,11 @@ def _build_from_install(wheel: Path, tmp_path: Path,
         zf.extractall(site)
     assert (site / "controller" / "fmu" / "tracker_slave.py").is_file()
     if compiled is not None:
-        for path in compiled.iterdir():
-            if path.name.endswith((".so", ".pyd")) or path.name == "_native_manifest.json":
-                shutil.copy2(path, site / "controller" / "tracking" / path.name)
+        # (the group's packages: the tracking folder and its siblings, setup.py PACKAGES)
+        for package in ("tracking", "conveyor", "conveyor/frames", "kinematics"):
+            for path in (compiled.parent / package).iterdir():
+                if path.name.endswith((".so", ".pyd")) or path.name == "_native_manifest.json":
+                    shutil.copy2(path, site / "controller" / package / path.name)
     hide = _HIDE_INSTALLED.replace('"/resources/" in spec.origin',
                                    f'spec.origin.startswith({str(site)!r})')
     script = hide + textwrap.dedent(f"""

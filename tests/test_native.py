@@ -1,11 +1,12 @@
-"""The compiled tracking core (docs/architecture.md "Compiled core").
+"""The compiled core (docs/architecture.md "Compiled core"): ``controller.tracking``,
+``controller.conveyor`` (with ``frames``) and ``controller.kinematics``.
 
 - compiled and pure give byte-identical results: a stepped ``cantrack demo`` (bus.log,
   telemetry, summary) and the simulator's traces of examples, each run in a subprocess with
-  ``CANTRACK_PURE=1`` and one without;
-- ``CANTRACK_PURE=1`` runs every module of ``controller.tracking`` from its source;
-- the stale build guard: a source edited after the build runs as source, with one warning
-  naming the file.
+  ``CANTRACK_PURE=1`` and one without; the value classes have the same dataclass fields;
+- ``CANTRACK_PURE=1`` runs every module of the compiled packages from its source;
+- the stale build guard: a source edited after the build runs as source (every compiled
+  package), with one warning naming the file.
 
 Where the install did not compile the core (no C compiler at ``pip install`` time, or
 ``CANTRACK_NO_EXTENSIONS=1``) the tests that need the compiled modules are skipped; in CI
@@ -31,12 +32,24 @@ ROOT = Path(__file__).resolve().parents[1]
 PACKAGE = Path(controller.__file__).resolve().parent
 EXTENSION_SUFFIXES = (".so", ".pyd")
 
-#: prints NATIVE and, per submodule of controller.tracking, where it was loaded from
-PROBE = ("import json, sys, controller.tracking as t\n"
-         "from controller.tracking import (batch, conditioning, desync, estimator, follow,\n"
-         "    metrics, optimal, oscillation, planner, softmc, tracker, types, values, vec)\n"
+#: the packages the build compiles (setup.py PACKAGES) and their modules that stay pure
+#: (setup.py PURE_ONLY; every package's __init__ too)
+COMPILED = ("tracking", "conveyor", "conveyor/frames", "kinematics")
+PURE_ONLY = {"controller.tracking.batch", "controller.tracking.metrics",
+             "controller.conveyor.errors"}
+#: the modules of the compiled packages, as the source tree has them
+MODULES = sorted(
+    "controller." + p.relative_to(PACKAGE).with_suffix("").as_posix().replace("/", ".")
+    for package in COMPILED for p in (PACKAGE / package).glob("*.py") if p.name != "__init__.py")
+
+#: prints NATIVE and, per module of the compiled packages, where it was loaded from
+PROBE = ("import importlib, json, sys, controller.tracking as t\n"
+         f"for name in {MODULES!r}:\n"
+         "    importlib.import_module(name)\n"
          "mods = {k: m.__file__ for k, m in sorted(sys.modules.items())\n"
-         "        if k.startswith('controller.tracking.') and not k.endswith('__mypyc')}\n"
+         "        if k.startswith(('controller.tracking.', 'controller.conveyor.',\n"
+         "                         'controller.kinematics.'))\n"
+         "        and not k.endswith('__mypyc') and not k.endswith('.frames')}\n"
          "print(json.dumps({'native': t.NATIVE, 'modules': mods}))\n")
 
 
@@ -72,7 +85,7 @@ def native(skip_or_fail) -> None:
 def test_pure_is_honoured(native):
     probe, stderr = _probe(pure=True)
     assert probe["native"] is False
-    assert len(probe["modules"]) == 14
+    assert sorted(probe["modules"]) == MODULES
     assert all(f.endswith(".py") for f in probe["modules"].values()), probe["modules"]
     assert stderr == ""
 
@@ -80,11 +93,37 @@ def test_pure_is_honoured(native):
 def test_the_compiled_modules_run_by_default(native):
     probe, stderr = _probe(pure=False)
     assert probe["native"] is True
-    assert len(probe["modules"]) == 14
-    pure_only = {"controller.tracking.batch", "controller.tracking.metrics"}  # (setup.py)
-    assert all(f.endswith(EXTENSION_SUFFIXES) == (name not in pure_only)
+    assert sorted(probe["modules"]) == MODULES
+    assert len(MODULES) == 34  # (tracking 14, conveyor 14, frames 4, kinematics 2)
+    assert all(f.endswith(EXTENSION_SUFFIXES) == (name not in PURE_ONLY)
                for name, f in probe["modules"].items()), probe["modules"]
     assert stderr == ""
+
+
+#: prints the fields of every dataclass of the compiled packages' modules
+FIELDS = ("import dataclasses, importlib, json\n"
+          "out = {}\n"
+          f"for name in {MODULES!r}:\n"
+          "    m = importlib.import_module(name)\n"
+          "    for k, v in sorted(vars(m).items()):\n"
+          "        if isinstance(v, type) and dataclasses.is_dataclass(v) and "
+          "v.__module__ == name:\n"
+          "            out[name + '.' + k] = [f.name for f in dataclasses.fields(v)]\n"
+          "print(json.dumps(out))\n")
+
+
+def test_compiled_and_pure_value_classes_have_the_same_fields(native):
+    """mypyc gives a Python class's class attributes annotations: an attribute without
+    ``ClassVar`` (``units = "mm"``, ``x = property(...)``) would become a dataclass field
+    compiled (another ``__init__``, repr and equality)."""
+    fields = []
+    for pure in (False, True):
+        r = _python(["-c", FIELDS], pure)
+        assert r.returncode == 0, r.stderr
+        fields.append(json.loads(r.stdout.splitlines()[-1]))
+    assert fields[0] == fields[1]
+    assert fields[0]["controller.conveyor.frames.linear.LinearGeometry"] == [
+        "origin", "directions", "scales", "local_axis"]
 
 
 def _demo(out: Path, pure: bool) -> tuple[bytes, list[dict], list[str]]:
@@ -123,9 +162,11 @@ def test_compiled_and_pure_simulator_traces_are_identical(native, tmp_path, scen
     assert len(traces[0]) > 1000
 
 
-def test_a_source_changed_after_the_build_runs_as_source(native, tmp_path):
-    """The stale build guard: copy the compiled package, edit one source: that import runs
-    the pure package and warns once, naming the file; the unedited copy runs compiled."""
+@pytest.mark.parametrize("source", ["tracking/vec.py", "conveyor/frames/linear.py"])
+def test_a_source_changed_after_the_build_runs_as_source(native, tmp_path, source):
+    """The stale build guard: copy the compiled package, edit one source (of the tracking
+    core, of a conveyor subpackage): that import runs every compiled package pure and warns
+    once, naming the file; the unedited copy runs compiled."""
     copy = tmp_path / "site" / "controller"
     shutil.copytree(PACKAGE, copy, ignore=shutil.ignore_patterns("__pycache__"))
     tracking = copy / "tracking"
@@ -135,7 +176,7 @@ def test_a_source_changed_after_the_build_runs_as_source(native, tmp_path):
     assert probe["native"] is True, stderr
     assert all(f.startswith(site) for f in probe["modules"].values())
 
-    edited = tracking / "vec.py"
+    edited = copy / source
     edited.write_text(edited.read_text() + "\n# edited after the build\n")
     probe, stderr = _probe(pure=False, cwd=tmp_path, PYTHONPATH=site)
     assert probe["native"] is False

@@ -34,16 +34,22 @@ def record(setup_py) -> dict:
 
 @pytest.fixture
 def build(setup_py, record, tmp_path) -> Path:
-    """A fake in-place build of ``record``: its manifest, an (empty) file per extension."""
-    setup_py._write_manifest(tmp_path, record)
-    for stem in ["_core__mypyc"] + [name[:-3] for name in record["sources"]]:
-        (tmp_path / (stem + SUFFIX)).write_bytes(b"")
-    return tmp_path
+    """A fake in-place build of ``record`` in ``controller/tracking``: its manifest, an
+    (empty) file per extension (the sources' names are relative to ``controller/``)."""
+    tracking = tmp_path / "controller" / "tracking"
+    setup_py._write_manifest(tracking, record)
+    for stem in ["tracking/_core__mypyc"] + [name[:-3] for name in record["sources"]]:
+        path = tmp_path / "controller" / (stem + SUFFIX)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_bytes(b"")
+    return tracking
 
 
 def test_the_record_names_what_the_compile_depends_on(setup_py, record):
-    assert set(record["sources"]) == {p.name for p in setup_py._sources()}
-    assert "tracker.py" in record["sources"] and "batch.py" not in record["sources"]
+    assert set(record["sources"]) == {setup_py._name(p) for p in setup_py._sources()}
+    assert "tracking/tracker.py" in record["sources"]
+    assert "conveyor/frames/linear.py" in record["sources"]
+    assert not {"tracking/batch.py", "conveyor/errors.py"} & set(record["sources"])
     build = record["build"]
     assert build["python"] and build["mypy"] == "2.4.1"
     assert build["flags"]["mypycify"] == {"opt_level": "3", "debug_level": "0",
@@ -52,7 +58,7 @@ def test_the_record_names_what_the_compile_depends_on(setup_py, record):
     # the modules mypy reads for their types: the package's pure ones and the base layer
     assert {"controller/limits.py", "controller/errors.py", "controller/tracking/__init__.py",
             "controller/tracking/batch.py"} <= set(build["read"])
-    assert not {f"controller/tracking/{name}" for name in record["sources"]} & set(build["read"])
+    assert not {f"controller/{name}" for name in record["sources"]} & set(build["read"])
     # what the import-time stale guard reads is unchanged: compiled source -> SHA-256
     assert all(len(digest) == 64 for digest in record["sources"].values())
 
@@ -65,18 +71,19 @@ def test_an_unchanged_build_is_up_to_date(setup_py, record, build):
 
 def test_a_changed_source_is_stale(setup_py, record, build):
     now = copy.deepcopy(record)
-    now["sources"]["tracker.py"] = "0" * 64
+    now["sources"]["tracking/tracker.py"] = "0" * 64
     assert setup_py._in_place_build_stale(build, now) == (
-        "tracker.py: changed since the last build")
+        "tracking/tracker.py: changed since the last build")
 
 
 def test_a_module_added_to_the_compiled_list_is_stale(setup_py, record, build):
     now = copy.deepcopy(record)
-    now["sources"]["newmodule.py"] = "1" * 64
+    now["sources"]["tracking/newmodule.py"] = "1" * 64
     assert setup_py._in_place_build_stale(build, now) == (
-        "newmodule.py: not compiled in the last build")
-    del now["sources"]["newmodule.py"], now["sources"]["vec.py"]
-    assert "vec.py: compiled in the last build" in setup_py._in_place_build_stale(build, now)
+        "tracking/newmodule.py: not compiled in the last build")
+    del now["sources"]["tracking/newmodule.py"], now["sources"]["tracking/vec.py"]
+    assert "tracking/vec.py: compiled in the last build" in \
+        setup_py._in_place_build_stale(build, now)
 
 
 def test_another_mypy_version_is_stale(setup_py, record, build):
@@ -103,9 +110,10 @@ def test_a_changed_module_that_mypy_reads_is_stale(setup_py, record, build):
         "controller/limits.py: changed since the last build (mypy reads its types)")
 
 
-@pytest.mark.parametrize("stem", ["tracker", "_core__mypyc"])
+@pytest.mark.parametrize("stem", ["tracking/tracker", "tracking/_core__mypyc",
+                                  "conveyor/frames/linear"])
 def test_a_missing_extension_file_is_stale(setup_py, record, build, stem):
-    (build / (stem + SUFFIX)).unlink()
+    (build.parent / (stem + SUFFIX)).unlink()
     assert setup_py._in_place_build_stale(build, record) == f"{stem}{SUFFIX}: missing"
 
 

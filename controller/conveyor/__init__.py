@@ -27,6 +27,9 @@ MasterFrame, slave, IMFS, hand-off), ``catch`` (can it catch this item?), ``tele
 triggers), ``errors``.
 """
 
+# first: controller.tracking chooses compiled or pure for this package's modules too
+# (docs/architecture.md "Compiled core"), before one of them is loaded
+from .. import tracking as _tracking  # noqa: F401
 from .catch import CatchPrediction, predict_catch
 from .cell import ConveyorCell
 from .errors import (ITEM_MISSED_CODE, ArcGeometryError, FrameBusyError, NoFrameError,

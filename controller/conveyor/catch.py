@@ -43,6 +43,7 @@ from dataclasses import dataclass
 from typing import TypedDict
 
 from ..tracking import Mode, MotionState, TrackState
+from ..tracking.values import python_class
 from .frame import MovingFrame
 from .frames import RotaryGeometry
 from .location import Location, q_axis_angle, q_conj, q_mul, q_to_axis_angle, q_twist_angle
@@ -60,6 +61,7 @@ class _Timing(TypedDict, total=False):
     lower_bound_s: float
 
 
+@python_class
 @dataclass(frozen=True, slots=True)
 class CatchPrediction:
     """Times in s; ``in_s`` from now, ``time_s`` absolute (robot samples * T)."""
@@ -239,10 +241,12 @@ def predict_catch(robot, frame: MovingFrame | None = None, item: TriggerEntry | 
         out = tracker.update(target_of(p, off_p, off_a))
         if tracker.desync_count != seen:     # a de-sync started: its end moves into V
             seen = tracker.desync_count
-            e = tracker.desync_end
-            virtual.shift(Location(tuple(a - b for a, b in zip(e.pos, off_p)),
-                                   q_axis_angle(axis, e.ang - off_a)))
-            off_p, off_a = e.pos, e.ang
+            # (not ``e``, the quaternion above: compiled, a name keeps its first type)
+            end = tracker.desync_end
+            assert end is not None  # (set when the de-sync started)
+            virtual.shift(Location(tuple(a - b for a, b in zip(end.pos, off_p)),
+                                   q_axis_angle(axis, end.ang - off_a)))
+            off_p, off_a = end.pos, end.ang
         if out.error:
             return CatchPrediction(False, f"the tracker would stop with {out.error.name}",
                                    name, iid, False, **common)

@@ -12,6 +12,7 @@ from __future__ import annotations
 from typing import Sequence
 
 from ..errors import ParameterError
+from ..tracking.values import mypyc_attr
 from .frame import MovingFrame
 from .robot import RobotGroup, RobotOutput
 from .sources import FrameSource
@@ -36,6 +37,7 @@ def _ordered(frames: Sequence[MovingFrame]) -> list[MovingFrame]:
     return out
 
 
+@mypyc_attr(allow_interpreted_subclasses=True)  # (copyable: deepcopy, snapshots)
 class ConveyorCell:
     """Frames and robots on a common sample clock (``sample_time_s``).
 

@@ -41,6 +41,7 @@ from typing import TYPE_CHECKING, Sequence
 from ..errors import ParameterError, StateError
 from ..limits import CartesianLimits, Limits
 from ..tracking import TrackError
+from ..tracking.values import as_stored, mypyc_attr
 from .frames import FramePoint, GroupGeometry, LinearGeometry, RotaryGeometry
 from .kinematics import Kinematics
 from .location import Location, Vec3, as_location, v_norm, vec3
@@ -90,7 +91,7 @@ SOFTMC_LIMIT_NAMES: dict[str, tuple[str, str]] = {
 }
 
 
-def frame_limits(base: CartesianLimits = FRAME_LIMITS, **softmc: float) -> CartesianLimits:
+def frame_limits(base: CartesianLimits = FRAME_LIMITS, **softmc: float | int) -> CartesianLimits:
     """``base`` (softMC's defaults) with the bounds given by their softMC names, e.g.
     ``frame_limits(VelocityMaxTrans=500.0)`` [mm/s, mm/s^2, mm/s^3; deg/s, ...].
 
@@ -113,6 +114,7 @@ def frame_limits(base: CartesianLimits = FRAME_LIMITS, **softmc: float) -> Carte
     return CartesianLimits(Limits(**bounds["trans"]), Limits(**bounds["rot"]))
 
 
+@mypyc_attr(allow_interpreted_subclasses=True)  # (copyable: deepcopy, snapshots)
 class MovingFrame:
     """A moving frame.  Units: mm, deg, s; source values in source units.
 
@@ -142,7 +144,7 @@ class MovingFrame:
             raise ParameterError(f"frame {name!r}: world (={world!r}) must be a Kinematics")
         self.world = world
         self.sources = tuple(sources)
-        n = nof if nof is not None else (len(self.sources) or 1)
+        n = as_stored(nof) if nof is not None else (len(self.sources) or 1)
         if int(n) != n or n < 1:
             raise ParameterError(f"frame {name!r}: NOF (={nof!r}) must be an integer >= 1")
         if self.sources and len(self.sources) != n:
@@ -216,7 +218,7 @@ class MovingFrame:
         return self._type
 
     @type.setter
-    def type(self, value: int) -> None:
+    def type(self, value: FrameType | int) -> None:
         if isinstance(value, bool) or value not in (LINEAR, ROTARY, ROTARY_DECOUPLED, GROUP):
             raise ParameterError(f"<{self.name}>.type (={value!r}) must be 0 (linear), "
                                  "1 (rotary), 2 (rotary decoupled) or 3 (group)")
@@ -295,10 +297,25 @@ class MovingFrame:
         three points are collinear)."""
         return self._rotary().center
 
-    start = property(lambda self: self._rotary().start, doc="<MF>.start (unit vector)")
-    normal = property(lambda self: self._rotary().normal, doc="<MF>.normal (unit vector)")
-    radius = property(lambda self: self._rotary().radius, doc="<MF>.radius [mm]")
-    alpha = property(lambda self: self._rotary().alpha_deg, doc="arc angle alpha [deg]")
+    @property
+    def start(self) -> Vec3:
+        """<MF>.start (unit vector)"""
+        return self._rotary().start
+
+    @property
+    def normal(self) -> Vec3:
+        """<MF>.normal (unit vector)"""
+        return self._rotary().normal
+
+    @property
+    def radius(self) -> float:
+        """<MF>.radius [mm]"""
+        return self._rotary().radius
+
+    @property
+    def alpha(self) -> float:
+        """arc angle alpha [deg]"""
+        return self._rotary().alpha_deg
 
     # -- cyclic -----------------------------------------------------------------------------
     def update(self, k: int, t_s: float) -> tuple[SourceState, ...]:

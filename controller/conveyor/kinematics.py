@@ -29,6 +29,7 @@ from enum import Enum
 from typing import TYPE_CHECKING
 
 from ..errors import ParameterError
+from ..tracking.values import python_class
 
 if TYPE_CHECKING:
     from .frame import MovingFrame
@@ -53,6 +54,7 @@ class KinematicsError(ParameterError):
     """A robot cannot track a moving frame of another kinematics system."""
 
 
+@python_class
 @dataclass(frozen=True, slots=True)
 class Kinematics:
     """A robot type and the dimension of its world frame (2, 3, 4 or 6 coordinates)."""
@@ -94,7 +96,9 @@ def _frame_needs(frame: "MovingFrame") -> tuple[bool, tuple[float, float, float]
 def check_compatible(robot_name: str, robot: Kinematics, frame: "MovingFrame") -> None:
     """Raise :class:`KinematicsError` if ``robot`` cannot track ``frame`` (module doc)."""
     world = frame.world
-    if world is not None and world != robot:
+    # (the fields compared: compiled code compares two instances of a class without its own
+    # __eq__ by identity, docs/architecture.md "Compiled core")
+    if world is not None and (world.type, world.dimension) != (robot.type, robot.dimension):
         raise KinematicsError(
             f"robot {robot_name!r} ({robot}) cannot track moving frame {frame.name!r}: its "
             f"world frame is of another kinematics system ({world}); the robot type and the "

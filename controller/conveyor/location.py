@@ -30,6 +30,7 @@ from dataclasses import dataclass
 from typing import Iterable, Sequence
 
 from ..errors import ParameterError
+from ..tracking.values import python_class
 
 Vec3 = tuple[float, float, float]
 Quat = tuple[float, float, float, float]
@@ -194,6 +195,7 @@ def q_power(q: Sequence[float], s: float) -> Quat:
 
 
 # -- locations ----------------------------------------------------------------------------
+@python_class
 @dataclass(frozen=True, slots=True)
 class Location:
     """A softMC location: ``pos`` [mm] and ``ori``, a unit quaternion (w, x, y, z).
@@ -277,8 +279,8 @@ class Location:
 
 
 #: the slots of Location, set directly (a frozen dataclass refuses setattr)
-_set_pos = Location.__dict__["pos"].__set__
-_set_ori = Location.__dict__["ori"].__set__
+_set_pos = vars(Location)["pos"].__set__
+_set_ori = vars(Location)["ori"].__set__
 _new = object.__new__
 
 

@@ -37,6 +37,7 @@ from typing import Any
 
 from ..errors import ParameterError
 from ..limits import CartesianLimits, Limits
+from ..tracking.values import mypyc_attr, python_class
 from .location import (Location, Q_IDENTITY, Vec3, pos3, q_mul, q_power, q_to_axis_angle,
                        v_norm, vec3)
 
@@ -49,6 +50,7 @@ KEEP: Any = object()
 MOTION_LIMITS = CartesianLimits(Limits(500.0, 5000.0, 100000.0), Limits(180.0, 1800.0, 36000.0))
 
 
+@mypyc_attr(allow_interpreted_subclasses=True)  # (copyable: predict_catch deep-copies it)
 class SCurve:
     """Rest-to-rest jerk-limited profile over ``distance`` >= 0 with limits V, A, J.
 
@@ -110,6 +112,7 @@ class SCurve:
         return self.distance, 0.0, 0.0  # pragma: no cover
 
 
+@python_class
 @dataclass
 class Motion:
     """A motion of the virtual robot.  ``target``: absolute (world TCP) or, with
@@ -135,6 +138,7 @@ class Motion:
         return self.k0 is not None
 
 
+@python_class
 @dataclass
 class _Factor:
     motion: Motion | None  # None: a constant (shift)
@@ -148,6 +152,7 @@ class _Factor:
         return d
 
 
+@mypyc_attr(allow_interpreted_subclasses=True)  # (copyable: predict_catch deep-copies it)
 class VirtualRobot:
     """The virtual robot of one robot group (world TCP).  See the module docstring."""
 

@@ -25,10 +25,12 @@ from pathlib import Path
 from typing import Callable, Sequence
 
 from ..errors import ConfigError
+from ..tracking.values import python_class
 from .cell import ConveyorCell
 from .robot import RobotOutput
 
 
+@python_class
 @dataclass(frozen=True, slots=True)
 class TriggerEvent:
     """A TRIGGER given after step ``sample``."""

@@ -97,7 +97,7 @@ from dataclasses import dataclass
 from enum import IntEnum, StrEnum
 from typing import Any, Iterable, Mapping, Sequence, overload
 
-from ..tracking.values import fast_init
+from ..tracking.values import fast_init, mypyc_attr
 from ..errors import CantrackError, ParameterError, StateError
 from ..limits import CartesianLimits, Limits
 from ..tracking import Imfs, Mode, MotionState, TrackError, TrackerParams, TrackState
@@ -186,6 +186,7 @@ class RobotOutput:
 _ZERO3 = (0.0, 0.0, 0.0)
 
 
+@mypyc_attr(allow_interpreted_subclasses=True)  # (copyable: deepcopy, snapshots)
 class FrameLink:
     """One robot following one moving frame (internal to :class:`RobotGroup`)."""
 
@@ -570,6 +571,7 @@ def _check_item_type(value: Any, what: str) -> None:
         raise ParameterError(f"{what} (={value!r}) must be an integer in [0...{ITEM_TYPE_MAX}]")
 
 
+@mypyc_attr(allow_interpreted_subclasses=True)  # (copyable: deepcopy, snapshots)
 class RobotGroup:
     """A robot group that tracks moving frames (see the module docstring).
 
@@ -836,7 +838,7 @@ class RobotGroup:
     def trigger(self, frame: MovingFrame | str | None = None, *, ndof: int | None = None,
                 value: float | None = None, values: Sequence[float] | None = None,
                 dr_mm: float = 0.0, inverse: bool = False,
-                age_s: float | None = None, item_type: int = 0,
+                age_s: float | None = None, item_type: int | float = 0,
                 attributes: Mapping[str, float | str] | None = None,
                 offset: Location | None = None,
                 location: Location | None = None) -> TriggerEntry:

@@ -27,7 +27,7 @@ import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Callable, Protocol, Sequence
 
-from ..tracking.values import fast_init
+from ..tracking.values import as_stored, fast_init, mypyc_attr
 from ..errors import ParameterError, StateError
 from ..tracking import MasterEstimator, unwrap_counts
 from .location import vec3
@@ -63,6 +63,7 @@ class MasterSource(Protocol):
         ...
 
 
+@mypyc_attr(allow_interpreted_subclasses=True)  # (copyable: deepcopy, snapshots)
 class SimulatedAxis:
     """A simulated master axis: ``fn(t_s) -> (pos, vel, acc)`` [unit, unit/s, unit/s^2]."""
 
@@ -91,6 +92,7 @@ class SimulatedAxis:
         return SourceState(float(p), float(v), float(a))
 
 
+@mypyc_attr(allow_interpreted_subclasses=True)  # (copyable: deepcopy, snapshots)
 class EncoderSource:
     """An incremental/absolute encoder in counts, wrapping at ``modulus`` (0: no wrap).
 
@@ -104,7 +106,7 @@ class EncoderSource:
     def __init__(self, sample_time_s: float, *, modulus: int = 0,
                  counts: Callable[[int], int] | Sequence[int] | None = None, window: int = 8,
                  lead_samples: float = 0.0, name: str = "encoder") -> None:
-        if int(modulus) != modulus or modulus < 0:
+        if int(as_stored(modulus)) != as_stored(modulus) or modulus < 0:
             raise ParameterError(f"encoder modulus (={modulus!r}) must be an integer >= 0")
         self.modulus = int(modulus)
         self.name = name
@@ -152,6 +154,7 @@ def quantise_counts(value_units: float, counts_per_unit: float, modulus: int = 0
     return c % modulus if modulus else c
 
 
+@mypyc_attr(allow_interpreted_subclasses=True)  # (copyable: deepcopy, snapshots)
 class FrameSource:
     """Another moving frame's DOF coordinate as a master source [mm or deg].
 
@@ -184,6 +187,7 @@ class FrameSource:
         return SourceState(c, cd, cdd)
 
 
+@mypyc_attr(allow_interpreted_subclasses=True)  # (copyable: deepcopy, snapshots)
 class GroupSource:
     """Another robot group's TCP as a master: ``transform : robot.setpoint`` [mm, quaternion].
 
@@ -244,6 +248,7 @@ class GroupSource:
         return tuple(GroupAxis(self, i) for i in range(4))
 
 
+@mypyc_attr(allow_interpreted_subclasses=True)  # (copyable: deepcopy, snapshots)
 class GroupAxis:
     """DOF ``index`` (0-2: x, y, z [mm]; 3: angle [deg]) of a :class:`GroupSource`."""
 

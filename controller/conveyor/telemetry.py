@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from ..tracking.values import python_class
 from enum import Enum
 
 
@@ -38,6 +39,7 @@ class ItemStatus(str, Enum):
     IGNORED = "ignored"
 
 
+@python_class
 @dataclass
 class ItemRecord:
     """Telemetry of one item (see the module docstring).  Samples are the robot's."""
@@ -78,11 +80,25 @@ class ItemRecord:
     def _t(self, k: int | None) -> float | None:
         return None if k is None else k * self.sample_time_s
 
-    trigger_s = property(lambda self: self._t(self.trigger_sample))
-    entered_s = property(lambda self: self._t(self.entered_sample))
-    engaged_s = property(lambda self: self._t(self.engaged_sample))
-    synced_s = property(lambda self: self._t(self.synced_sample))
-    left_s = property(lambda self: self._t(self.left_sample))
+    @property
+    def trigger_s(self) -> float | None:
+        return self._t(self.trigger_sample)
+
+    @property
+    def entered_s(self) -> float | None:
+        return self._t(self.entered_sample)
+
+    @property
+    def engaged_s(self) -> float | None:
+        return self._t(self.engaged_sample)
+
+    @property
+    def synced_s(self) -> float | None:
+        return self._t(self.synced_sample)
+
+    @property
+    def left_s(self) -> float | None:
+        return self._t(self.left_sample)
 
     def observe(self, synced: bool, err_pos: tuple, err_ang: float, dv: tuple) -> None:
         """One sample of the approach (``synced`` False) or of following (True)."""

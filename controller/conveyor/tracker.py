@@ -37,9 +37,11 @@ from ..tracking import MotionState, Tracker, TrackerParams, TrackState
 from ..tracking.desync import Desync, SineStop
 from ..tracking.vec import Vec
 from ..errors import ParameterError
+from ..tracking.values import mypyc_attr, python_class
 from .location import Vec3, v_cross, v_dot, v_norm, v_scale, v_sub, vec3
 
 
+@python_class
 @dataclass(frozen=True, slots=True)
 class ArcPath:
     """p = center + r*(start*cos(s) + normal*sin(s)), s in rad (a ``DesyncPath``)."""
@@ -60,6 +62,7 @@ class ArcPath:
         return pos, vel, acc
 
 
+@python_class
 @dataclass(frozen=True, slots=True)
 class AnglePath:
     """The angle channel coupled to an arc: ang = ang0 + gain*s (gain = 180/pi deg/rad)."""
@@ -72,6 +75,7 @@ class AnglePath:
         return (self.ang0 + g * s,), (g * sd,), (g * sdd,)
 
 
+@mypyc_attr(allow_interpreted_subclasses=True)  # (copyable: deepcopy, snapshots)
 class ConveyorTracker(Tracker):
     """A :class:`Tracker` that de-syncs along an arc when one is set.
 

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 from collections import deque
 from dataclasses import dataclass, replace
+from ..tracking.values import as_stored, mypyc_attr, python_class
 from typing import AbstractSet, Iterator
 
 from ..errors import ParameterError
@@ -32,6 +33,7 @@ from .location import Location
 from .errors import TriggerBufferFull
 
 
+@python_class
 @dataclass(frozen=True, slots=True)
 class TriggerEntry:
     """One item: ``frame`` (name), ``values`` per DOF [source units], ``dr_mm``, ``inverse``.
@@ -65,11 +67,12 @@ class TriggerEntry:
         return replace(self, **changes)
 
 
+@mypyc_attr(allow_interpreted_subclasses=True)  # (copyable: deepcopy, snapshots)
 class TriggerBuffer:
     """A bounded FIFO of :class:`TriggerEntry` (``capacity`` entries)."""
 
     def __init__(self, capacity: int = 32, owner: str = "robot") -> None:
-        if int(capacity) != capacity or capacity < 1:
+        if int(as_stored(capacity)) != as_stored(capacity) or capacity < 1:
             raise ParameterError(f"trigger buffer capacity (={capacity!r}) must be an "
                                  "integer >= 1")
         self.capacity = int(capacity)

@@ -29,6 +29,7 @@ from enum import IntEnum
 from typing import Sequence
 
 from ..errors import ParameterError
+from ..tracking.values import python_class
 
 
 class WindowPosition(IntEnum):
@@ -37,6 +38,7 @@ class WindowPosition(IntEnum):
     AFTER = 1
 
 
+@python_class
 @dataclass(frozen=True, slots=True)
 class Window:
     """Upstream/downstream limits per DOF [frame units], relative to the trigger point."""

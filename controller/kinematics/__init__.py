@@ -11,6 +11,9 @@ drive's increments (integers).
 
 from __future__ import annotations
 
+# first: controller.tracking chooses compiled or pure for this package's modules too
+# (docs/architecture.md "Compiled core"), before one of them is loaded
+from .. import tracking as _tracking  # noqa: F401
 import importlib
 from collections.abc import Callable, Sequence
 from typing import Protocol

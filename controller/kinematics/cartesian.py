@@ -13,10 +13,12 @@ from operator import itemgetter
 
 from ..errors import ParameterError
 from ..tracking import MotionState
+from ..tracking.values import mypyc_attr
 
 AXES = ("x", "y", "z", "c")
 
 
+@mypyc_attr(allow_interpreted_subclasses=True)  # (copyable: deepcopy, snapshots)
 class CartesianGantry:
     name = "cartesian"
 

@@ -25,6 +25,7 @@ from dataclasses import dataclass
 
 from ..errors import ParameterError
 from ..tracking import unwrap_counts
+from ..tracking.values import mypyc_attr, python_class
 
 INT32_MIN, INT32_MAX = -0x80000000, 0x7FFFFFFF
 
@@ -34,6 +35,7 @@ def axis_unit(name: str) -> str:
     return "deg" if name == "c" else "mm"
 
 
+@python_class
 @dataclass(frozen=True, slots=True)
 class AxisScale:
     """One drive axis: ``counts_per_unit`` [counts/mm or counts/deg], ``zero`` [mm|deg],
@@ -84,6 +86,7 @@ class AxisScale:
         return min(ends), max(ends)
 
 
+@mypyc_attr(allow_interpreted_subclasses=True)  # (copyable: deepcopy, snapshots)
 class CountsConverter:
     """All drive axes of a machine, in drive order."""
 
@@ -115,6 +118,7 @@ class CountsConverter:
         return [(a.name, v) for a, v in zip(self.axes, joints) if not a.min <= v <= a.max]
 
 
+@mypyc_attr(allow_interpreted_subclasses=True)  # (copyable: deepcopy, snapshots)
 class EncoderScale:
     """The conveyor encoder: wrapped counts in, continuous belt travel [mm] out."""
 

@@ -32,6 +32,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Sequence
 
 from ...errors import ParameterError, StateError
+from ...tracking.values import python_class
 from ..location import (Location, Vec3, q_axis_angle, q_conj, q_mul, q_rotate, v_add, v_cross,
                         v_scale, v_sub, v_unit)
 from .base import FramePoint
@@ -40,6 +41,7 @@ if TYPE_CHECKING:
     from ..triggers import TriggerEntry
 
 
+@python_class
 @dataclass(frozen=True, slots=True)
 class GroupGeometry:
     """A robot group's TCP as a 4-DOF frame: ``axis`` (world, normalised) of the rotation
@@ -52,9 +54,19 @@ class GroupGeometry:
     def __post_init__(self) -> None:
         object.__setattr__(self, "axis", v_unit(self.axis, "group frame axis"))
 
-    nof = 4
-    units = "mm, mm, mm, deg"
-    rotates = True
+    # (properties, not class attributes: compiled, a dataclass's class attributes would be
+    # fields, docs/architecture.md "Compiled core")
+    @property
+    def nof(self) -> int:
+        return 4
+
+    @property
+    def units(self) -> str:
+        return "mm, mm, mm, deg"
+
+    @property
+    def rotates(self) -> bool:
+        return True
 
     @property
     def local_axis(self) -> Vec3:

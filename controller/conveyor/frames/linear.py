@@ -20,10 +20,12 @@ from dataclasses import dataclass
 from typing import Sequence
 
 from ...errors import ParameterError
+from ...tracking.values import python_class
 from ..location import Location, Vec3, v_unit, vec3
 from .base import FramePoint
 
 
+@python_class
 @dataclass(frozen=True, slots=True)
 class LinearGeometry:
     """``origin``: the trigger point's location (MF.zero); ``directions``: one unit vector per
@@ -47,9 +49,20 @@ class LinearGeometry:
                                      "[mm per source unit]")
         object.__setattr__(self, "scales", tuple(float(s) for s in self.scales))
 
-    nof = property(lambda self: len(self.directions))
-    units = "mm"
-    rotates = False
+    @property
+    def nof(self) -> int:
+        return len(self.directions)
+
+    # (properties, not class attributes: compiled, a dataclass's class attributes would be
+    # fields, docs/architecture.md "Compiled core")
+    @property
+    def units(self) -> str:
+        return "mm"
+
+    @property
+    def rotates(self) -> bool:
+        return False
+
     #: the local axis of the (always zero) angle channel
     local_axis: Vec3 = (0.0, 0.0, 1.0)
 

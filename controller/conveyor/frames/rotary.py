@@ -61,6 +61,7 @@ from dataclasses import dataclass
 from typing import Sequence
 
 from ...errors import ParameterError
+from ...tracking.values import python_class
 from ..errors import ArcGeometryError
 from ..location import (Location, Quat, Vec3, vec3, q_axis_angle, q_conj, q_mul, q_rotate,
                         q_twist_angle, q_angle_between, v_add, v_cross, v_dot, v_norm, v_scale,
@@ -71,6 +72,7 @@ from .base import FramePoint
 COLLINEAR_TOLERANCE = 1e-9
 
 
+@python_class
 @dataclass(frozen=True, slots=True)
 class ArcGeometry:
     """The circle pre-calculation of a rotary frame (all vectors in world coordinates).
@@ -128,6 +130,7 @@ def arc_from_points(up: Sequence[float], arc_point: Sequence[float],
     return ArcGeometry(center, start, normal, axis, radius, alpha)
 
 
+@python_class
 @dataclass(frozen=True, slots=True)
 class RotaryGeometry:
     """A rotary frame for one arc.  ``upstream``: UpStream[1] (its orientation is the frame's
@@ -159,14 +162,39 @@ class RotaryGeometry:
             deg_per_unit = arc.alpha_deg / (down_master - up_master)
         return cls(arc, upstream, float(deg_per_unit), decoupled)
 
-    nof = 1
-    units = "deg"
-    center = property(lambda self: self.arc.center)
-    start = property(lambda self: self.arc.start)
-    normal = property(lambda self: self.arc.normal)
-    radius = property(lambda self: self.arc.radius)
-    alpha_deg = property(lambda self: self.arc.alpha_deg)
-    axis = property(lambda self: self.arc.axis)
+    # (properties, not class attributes: compiled, a dataclass's class attributes would be
+    # fields, docs/architecture.md "Compiled core")
+    @property
+    def nof(self) -> int:
+        return 1
+
+    @property
+    def units(self) -> str:
+        return "deg"
+
+    @property
+    def center(self) -> Vec3:
+        return self.arc.center
+
+    @property
+    def start(self) -> Vec3:
+        return self.arc.start
+
+    @property
+    def normal(self) -> Vec3:
+        return self.arc.normal
+
+    @property
+    def radius(self) -> float:
+        return self.arc.radius
+
+    @property
+    def alpha_deg(self) -> float:
+        return self.arc.alpha_deg
+
+    @property
+    def axis(self) -> Vec3:
+        return self.arc.axis
 
     @property
     def rotates(self) -> bool:
