@@ -141,6 +141,32 @@ def test_vectors_as_lists_and_arrays(planner: str, kind: str) -> None:
     assert _run(p, master=master, init=init) == _run(p, master=plain)
 
 
+@pytest.mark.parametrize("planner, options", [("optimal", SoftMcOptions()),
+                                              ("softmc", SoftMcOptions()),
+                                              ("softmc", SoftMcOptions.literal())])
+@pytest.mark.parametrize("follow", [0, 1])
+def test_setpoint_vectors_are_floats_with_numpy_limits(planner, options, follow) -> None:
+    """Limits given as numpy floats (numbers, accepted): the setpoints' vectors are Python
+    floats in every phase, compiled and pure.  The softmc planner's clamps carry the numpy
+    scalars into its vectors, which the tracker converts (``MotionState``); the optimal
+    planner's and the SYNCED follower's are Python floats, stored as given
+    (``types.motion_state``)."""
+    f = np.float64
+    p = TrackerParams(sample_time_s=T, planner=planner, synced_follow=follow, softmc=options,
+                      sync_trans=Limits(f(500.0), f(2000.0), f(40000.0)))
+    t = Tracker(p, MotionState((100.0, -50.0, 0.0), (-200.0, 0.0, 0.0)))
+    t.engage()
+    seen = set()
+    for k in range(1, 900):
+        if k == 600:
+            t.disengage()
+        out = t.update(_belt(k))
+        seen.add(out.state)
+        sp = out.setpoint
+        assert all(type(x) is float for x in sp.pos + sp.vel + sp.acc), (k, out)
+    assert {TrackState.SYNCING, TrackState.SYNCED, TrackState.DESYNCING} <= seen
+
+
 @pytest.mark.parametrize("bad", [[1.0, 2.0], (1.0, 2.0, 3.0, 4.0), "abc", 5.0])
 def test_vectors_of_the_wrong_shape_refused(bad) -> None:
     with pytest.raises(ValueError, match="MotionState pos"):

@@ -1,4 +1,5 @@
-"""controller.tracking.values.fast_init: the same value objects as the dataclass' own __init__."""
+"""controller.tracking.values: fast_init (the same value objects as the dataclass' own
+__init__) and trusted (the same without __post_init__)."""
 
 from __future__ import annotations
 
@@ -9,7 +10,8 @@ import pickle
 import pytest
 
 from controller.tracking import MasterEstimate, MotionState, TrackerOutput
-from controller.tracking.values import fast_init
+from controller.tracking.types import motion_state
+from controller.tracking.values import fast_init, trusted
 
 
 @dataclasses.dataclass(frozen=True, slots=True)
@@ -78,3 +80,42 @@ def test_post_init_runs():
 def test_refused_where_it_would_differ(make):
     with pytest.raises(TypeError, match="fast_init"):
         fast_init(make())
+    with pytest.raises(TypeError, match="trusted"):
+        trusted(make(), "make")
+
+
+def test_trusted_same_values_without_post_init():
+    seen = []
+
+    @dataclasses.dataclass(frozen=True, slots=True)
+    class Checked:
+        x: float
+        y: tuple[float, ...] = (1.0,)
+
+        def __post_init__(self) -> None:
+            seen.append(self.x)
+            if self.x < 0:
+                raise ValueError("negative")
+
+    make = trusted(Checked, "make")
+    assert make(2.0) == Checked(2.0) and make(2.0, (3.0,)) == Checked(2.0, (3.0,))
+    assert make(y=(), x=1.0) == Checked(1.0, ())
+    seen.clear()
+    assert make(-1.0).x == -1.0 and seen == []  # not validated
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        make(1.0).x = 2.0  # type: ignore[misc]
+    with pytest.raises(TypeError):
+        make()  # a required field stays required
+
+
+def test_motion_state_as_given():
+    args = ((1.0, 2.0, 3.0), (4.0, 5.0, 6.0), (0.5, 0.0, -0.5), 7.0, 8.0, 9.0)
+    m = motion_state(*args)
+    assert type(m) is MotionState and m == MotionState(*args)
+    assert dataclasses.astuple(m) == dataclasses.astuple(MotionState(*args))
+    assert m.jerk == (0.0, 0.0, 0.0) and m.ang_jerk == 0.0
+    assert pickle.loads(pickle.dumps(m)) == m
+    assert pickle.loads(pickle.dumps(motion_state)) is motion_state
+    pos = [1.0, 2.0, 3.0]  # (MotionState would convert it: the trusted one does not)
+    assert motion_state(pos, *args[1:]).pos is pos
+    assert type(MotionState(pos).pos) is tuple

@@ -153,6 +153,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from typing import ClassVar
 
 from ruckig import ControlInterface, InputParameter, Ruckig, Trajectory
 
@@ -338,6 +339,10 @@ class OptimalPlanner:
     """
 
     name = "optimal"
+    #: ``step`` returns tuples of Python floats (Ruckig's samples added to the master's
+    #: vectors, or the master's own): the tracker makes its approach setpoints from them
+    #: without converting them (``types.motion_state``)
+    float_tuples: ClassVar[bool] = True
 
     #: the Ruckig solver, its input and its trajectory for n DOFs: made by _solver() at the
     #: first reset (None before, and in a pickle; ruckig has no type information)

@@ -36,7 +36,7 @@ from .follow import SyncFollower
 from .oscillation import OscillationMonitor
 from .planner import ChannelPlanner, planner_factory
 from .types import (Imfs, Mode, MotionState, SyncFollow, TrackError, TrackerOutput,
-                    TrackerParams, TrackState)
+                    TrackerParams, TrackState, motion_state)
 from .values import attributes, mypyc_attr
 from .vec import Vec, vec3
 
@@ -69,6 +69,11 @@ class Tracker:
         factory = planner_factory(params.planner)
         self._planners: tuple[ChannelPlanner, ChannelPlanner] = (
             factory(self.limits.sync_trans, params), factory(self.limits.sync_rot, params))
+        #: the approach's setpoints made with ``types.motion_state`` (not converted): the
+        #: translation planner's ``step`` returns tuples of Python floats (a planner says so
+        #: with ``float_tuples = True``: the optimal one; softmc's carry a numpy scalar of
+        #: the parameters into its vectors, which ``MotionState`` converts)
+        self._trusted = getattr(self._planners[0], "float_tuples", False) is True
         window = max(1, round(params.max_flops_time_s / self.T))
         self._osc = (
             OscillationMonitor(params.max_flops, window,
@@ -150,6 +155,8 @@ class Tracker:
     def __setstate__(self, state: dict) -> None:
         for name, value in state.items():
             setattr(self, name, value)
+        if "_trusted" not in state:  # a state saved before the approach's trusted setpoints
+            self._trusted = False
 
     def snapshot(self) -> "Tracker":
         """A deep copy of the whole tracker (for FMU state save/restore and what-if runs)."""
@@ -306,7 +313,12 @@ class Tracker:
                         m.ang_jerk, *self._hist_r())
                 if not ok and self._osc[1].update(k, (m.ang_vel - ang_vel,)):
                     self.error = TrackError.OVER_OSCILLATION
-            self.setpoint = MotionState(vec3(pos), vec3(vel), vec3(acc), ang, ang_vel, ang_acc)
+            if self._trusted:
+                self.setpoint = motion_state(vec3(pos), vec3(vel), vec3(acc), ang, ang_vel,
+                                             ang_acc)
+            else:
+                self.setpoint = MotionState(vec3(pos), vec3(vel), vec3(acc), ang, ang_vel,
+                                            ang_acc)
             if self._synced[0] and self._synced[1]:
                 self.state = TrackState.SYNCED
                 self.synced_at = k
@@ -334,12 +346,14 @@ class Tracker:
                     ang, ang_vel, ang_acc = fo[1].step1(sp.ang, sp.ang_vel, sp.ang_acc, m.ang,
                                                         m.ang_vel, m.ang_acc, m.ang_jerk,
                                                         h2.ang, h3.ang)
-                # vec3 written out (three calls less per sample)
+                # vec3 written out (three calls less per sample); not converted: the
+                # follower returns the master's tuples (a MotionState's: converted when it
+                # was made) or Python floats it computed
                 x, y, z = pos
                 vx, vy, vz = vel
                 ax, ay, az = acc
-                self.setpoint = MotionState((x, y, z), (vx, vy, vz), (ax, ay, az), ang, ang_vel,
-                                            ang_acc)
+                self.setpoint = motion_state((x, y, z), (vx, vy, vz), (ax, ay, az), ang,
+                                             ang_vel, ang_acc)
         elif state is _DESYNCING:
             t = (k - self._desync_start) * self.T
             assert self._desync is not None  # set with the DESYNCING state

@@ -61,19 +61,29 @@ def python_class(cls: type[T]) -> type[T]:
     return cls
 
 
-def fast_init(cls: type[T]) -> type[T]:
-    """Replace the ``__init__`` of the frozen slots dataclass ``cls`` (see the module
-    docstring).  Fields with a ``default_factory``, ``init=False``, keyword-only fields and
-    ``InitVar`` pseudo-fields are refused (the generated code covers plain fields only)."""
+def _plain_fields(cls: type[Any], who: str) -> list[dataclasses.Field]:
+    """The fields of the frozen slots dataclass ``cls``; a TypeError naming ``who`` (the
+    generator) unless each is a plain field (no ``default_factory``, ``init=False``,
+    keyword-only or ``InitVar``: the generated code covers plain fields only)."""
     params = getattr(cls, "__dataclass_params__", None)
     if params is None or not params.frozen or "__slots__" not in cls.__dict__:
-        raise TypeError(f"fast_init: {cls.__name__} is not a frozen slots dataclass")
+        raise TypeError(f"{who}: {cls.__name__} is not a frozen slots dataclass")
+    fields = list(dataclasses.fields(cls))
+    for f in fields:
+        if not f.init or f.kw_only or f.default_factory is not dataclasses.MISSING:
+            raise TypeError(f"{who}: {cls.__name__}.{f.name} is not a plain field")
+    if list(inspect.signature(cls.__init__).parameters)[1:] != [f.name for f in fields]:
+        raise TypeError(f"{who}: {cls.__name__}.__init__ takes more than its fields")
+    return fields
+
+
+def _generate(cls: type[Any], fields: list[dataclasses.Field], head: str, tail: list[str],
+              ns: dict[str, object]) -> types.FunctionType:
+    """A function ``head(<the fields, with their defaults>)`` that sets each slot of
+    ``self`` through its slot descriptor, then runs the lines ``tail``."""
     args: list[str] = []
     body: list[str] = []
-    ns: dict[str, object] = {"_new": object.__new__}
-    for f in dataclasses.fields(cls):  # type: ignore[arg-type]
-        if not f.init or f.kw_only or f.default_factory is not dataclasses.MISSING:
-            raise TypeError(f"fast_init: {cls.__name__}.{f.name} is not a plain field")
+    for f in fields:
         if f.default is dataclasses.MISSING:
             args.append(f.name)
         else:
@@ -81,19 +91,40 @@ def fast_init(cls: type[T]) -> type[T]:
             args.append(f"{f.name}=_d_{f.name}")
         ns[f"_s_{f.name}"] = cls.__dict__[f.name].__set__
         body.append(f"    _s_{f.name}(self, {f.name})")
-    if list(inspect.signature(cls.__init__).parameters)[1:] != \
-            [f.name for f in dataclasses.fields(cls)]:  # type: ignore[arg-type]
-        raise TypeError(f"fast_init: {cls.__name__}.__init__ takes more than its fields")
-    if hasattr(cls, "__post_init__"):
-        body.append("    self.__post_init__()")
-    src = f"def __init__(self, {', '.join(args)}) -> None:\n" + "\n".join(body or ["    pass"])
+    src = head.format(", ".join(args)) + "\n" + "\n".join(body + tail or ["    pass"])
     exec(src, ns)  # noqa: S102 -- generated from the field names, as dataclasses does
-    init = ns["__init__"]
-    assert isinstance(init, types.FunctionType)  # (what exec defined)
+    func = ns["_generated"]
+    assert isinstance(func, types.FunctionType)  # (what exec defined)
+    return func
+
+
+def fast_init(cls: type[T]) -> type[T]:
+    """Replace the ``__init__`` of the frozen slots dataclass ``cls`` (see the module
+    docstring).  Fields with a ``default_factory``, ``init=False``, keyword-only fields and
+    ``InitVar`` pseudo-fields are refused (the generated code covers plain fields only)."""
+    fields = _plain_fields(cls, "fast_init")
+    tail = ["    self.__post_init__()"] if hasattr(cls, "__post_init__") else []
+    init = _generate(cls, fields, "def _generated(self, {}) -> None:", tail, {})
+    init.__name__ = "__init__"
     init.__qualname__ = f"{cls.__qualname__}.__init__"
     init.__doc__ = cls.__init__.__doc__
     setattr(cls, "__init__", init)  # noqa: B010 -- (mypy: no method assignment)
     return cls
 
 
-__all__ = ["as_stored", "attributes", "fast_init", "mypyc_attr", "python_class"]
+def trusted(cls: type[T], name: str) -> Callable[..., T]:
+    """A constructor of the frozen slots dataclass ``cls`` (same parameters and defaults as
+    its ``__init__``) that stores the values *as given*: no ``__post_init__``, so no
+    conversion and no validation.  For the tracking core's own values, made per sample from
+    values it computed (Python floats, or the fields of a value that was validated when it
+    was made); never for what a caller passes.  ``name``: the function's name as its module
+    exports it (for its repr)."""
+    fields = _plain_fields(cls, "trusted")
+    make = _generate(cls, fields, "def _generated({}):\n    self = _new(_cls)",
+                     ["    return self"], {"_new": object.__new__, "_cls": cls})
+    make.__name__ = make.__qualname__ = name
+    make.__module__ = cls.__module__
+    return make
+
+
+__all__ = ["as_stored", "attributes", "fast_init", "mypyc_attr", "python_class", "trusted"]
