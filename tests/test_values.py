@@ -1,5 +1,6 @@
 """controller.tracking.values: fast_init (the same value objects as the dataclass' own
-__init__) and trusted (the same without __post_init__)."""
+__init__), trusted (the same without __post_init__), integer / boolean (the int and bool
+fields as passed), restore."""
 
 from __future__ import annotations
 
@@ -9,9 +10,10 @@ import pickle
 
 import pytest
 
+from controller.errors import ParameterError
 from controller.tracking import MasterEstimate, MotionState, TrackerOutput
 from controller.tracking.types import motion_state
-from controller.tracking.values import fast_init, trusted
+from controller.tracking.values import boolean, fast_init, integer, restore, trusted
 
 
 @dataclasses.dataclass(frozen=True, slots=True)
@@ -119,3 +121,41 @@ def test_motion_state_as_given():
     pos = [1.0, 2.0, 3.0]  # (MotionState would convert it: the trusted one does not)
     assert motion_state(pos, *args[1:]).pos is pos
     assert type(MotionState(pos).pos) is tuple
+
+
+@dataclasses.dataclass(frozen=True)
+class _Fields:
+    n: object = 0
+    flag: object = 0
+    other: object = 1
+
+
+@pytest.mark.parametrize("value, low, high, want", [
+    (6, 1, None, 6), (6.0, 1, None, 6), (1.0, 1, None, 1), (0, 0, 100, 0), (100.0, 0, 100, 100),
+    (6.5, 1, None, "must be an integer >= 1"), (0, 1, None, "must be an integer >= 1"),
+    (-1, 0, 100, r"must be an integer in \[0...100\]"),
+    (100.5, 0, 100, r"must be an integer in \[0...100\]"),
+    (101, 0, 100, r"must be an integer in \[0...100\]")])
+def test_integer(value, low, high, want):
+    f = _Fields(n=value)
+    if isinstance(want, str):
+        with pytest.raises(ParameterError, match=f"n \\(={value!r}\\) {want}"):
+            integer(f, "n", low, high)
+    else:
+        integer(f, "n", low, high)
+        assert f.n == want and type(f.n) is int
+
+
+def test_boolean():
+    f = _Fields(flag=1, other=0)
+    boolean(f, "flag", "other")
+    assert f.flag is True and f.other is False
+
+
+def test_restore():
+    class Box:
+        pass
+
+    b = Box()
+    restore(b, {"a": 1, "b": [2]})
+    assert (b.a, b.b) == (1, [2])  # type: ignore[attr-defined]

@@ -65,7 +65,7 @@ import numpy as np
 from ..errors import ParameterError
 from ..limits import Limits
 from .types import MotionState, Vec3
-from .values import as_stored, attributes, mypyc_attr, python_class
+from .values import as_stored, attributes, integer, mypyc_attr, python_class, restore
 
 
 class ConditionerDesign(IntEnum):
@@ -122,11 +122,7 @@ class EncoderModel:
         s = as_stored(self)  # (the values as passed: values.as_stored)
         if not (math.isfinite(s.resolution_mm) and s.resolution_mm >= 0.0):
             raise ParameterError(f"resolution_mm (={s.resolution_mm!r}) must be >= 0 mm")
-        if int(s.latency_samples) != s.latency_samples or not 0 <= s.latency_samples <= 100:
-            raise ParameterError(
-                f"latency_samples (={s.latency_samples!r}) must be an integer in [0...100]")
-        # (stored as the int it equals: compiled code reads the field as an int)
-        object.__setattr__(self, "latency_samples", int(s.latency_samples))
+        integer(self, "latency_samples", 0, 100)
         if not (math.isfinite(s.noise_mm) and s.noise_mm >= 0.0):
             raise ParameterError(f"noise_mm (={s.noise_mm!r}) must be >= 0 mm")
 
@@ -198,16 +194,9 @@ class ConditioningParams:
             raise ParameterError(f"outlier_mm (={s.outlier_mm!r}) must be > 0 mm")
         if not (math.isfinite(s.jerk_reserve) and 0.0 <= s.jerk_reserve <= 100.0):
             raise ParameterError(f"jerk_reserve (={s.jerk_reserve!r}) must be in [0...100]")
-        if int(s.max_outliers) != s.max_outliers or s.max_outliers < 1:
-            raise ParameterError(f"max_outliers (={s.max_outliers!r}) must be an integer >= 1")
-        if s.warmup_samples is not None and (int(s.warmup_samples) != s.warmup_samples
-                                                or s.warmup_samples < 3):
-            raise ParameterError(
-                f"warmup_samples (={s.warmup_samples!r}) must be an integer >= 3")
-        # (stored as the ints they equal: compiled code reads the fields as ints)
-        object.__setattr__(self, "max_outliers", int(s.max_outliers))
+        integer(self, "max_outliers", 1)
         if s.warmup_samples is not None:
-            object.__setattr__(self, "warmup_samples", int(s.warmup_samples))
+            integer(self, "warmup_samples", 3)
 
     @property
     def gate_mm(self) -> float:
@@ -546,8 +535,7 @@ class MasterConditioner:
         return d
 
     def __setstate__(self, d) -> None:
-        for name, value in d.items():
-            setattr(self, name, value)
+        restore(self, d)
 
     def reset(self) -> None:
         """Forget the belt (the next sample starts the warm-up)."""

@@ -30,7 +30,7 @@ import math
 from typing import Any
 
 from ..limits import Limits
-from .values import attributes, mypyc_attr
+from .values import attributes, mypyc_attr, restore
 from .vec import Vec
 
 _ZERO3 = (0.0, 0.0, 0.0)
@@ -88,8 +88,7 @@ class SyncFollower:
         return d
 
     def __setstate__(self, d) -> None:
-        for name, value in d.items():
-            setattr(self, name, value)
+        restore(self, d)
         if "_c" not in d:  # a state saved before the constants were cached
             self._constants()
 

@@ -159,7 +159,7 @@ from ruckig import ControlInterface, InputParameter, Ruckig, Trajectory
 
 from ..limits import Limits
 from .follow import rest_target_solver
-from .values import attributes, mypyc_attr, python_class
+from .values import attributes, mypyc_attr, python_class, restore
 from .vec import Vec
 
 #: rows (u1, u2, u3) of a rotation R (q = R e); None stands for the world axes
@@ -402,8 +402,7 @@ class OptimalPlanner:
         return d
 
     def __setstate__(self, d) -> None:
-        for name, value in d.items():
-            setattr(self, name, value)
+        restore(self, d)
         if "_cont" not in d:  # a state saved before the continuity test (eq. 6.3)
             self._continuity()
             self._mprev = None

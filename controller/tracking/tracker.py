@@ -37,7 +37,7 @@ from .oscillation import OscillationMonitor
 from .planner import ChannelPlanner, planner_factory
 from .types import (Imfs, Mode, MotionState, SyncFollow, TrackError, TrackerOutput,
                     TrackerParams, TrackState, motion_state)
-from .values import attributes, mypyc_attr
+from .values import attributes, mypyc_attr, restore
 from .vec import Vec, vec3
 
 #: Builds the de-sync stops (translation, rotation) for a tracker about to de-sync, or returns
@@ -153,8 +153,7 @@ class Tracker:
         return attributes(self)
 
     def __setstate__(self, state: dict) -> None:
-        for name, value in state.items():
-            setattr(self, name, value)
+        restore(self, state)
         if "_trusted" not in state:  # a state saved before the approach's trusted setpoints
             self._trusted = False
 

@@ -14,7 +14,7 @@ from dataclasses import dataclass, field, replace
 from enum import IntEnum
 from typing import Any, Protocol
 
-from .values import as_stored, fast_init, python_class, trusted
+from .values import as_stored, boolean, fast_init, integer, python_class, trusted
 from ..errors import ParameterError
 from ..limits import Limits
 
@@ -134,11 +134,7 @@ class SoftMcOptions:
     unit_consistent_thresholds: bool = True
 
     def __post_init__(self) -> None:
-        # the switches stored as bools (a 0 or 1 given means what it does in an ``if``):
-        # compiled code reads them as bools (docs/architecture.md "Compiled core")
-        s = as_stored(self)
-        for name in _SOFTMC_SWITCHES:
-            object.__setattr__(self, name, bool(getattr(s, name)))
+        boolean(self, *_SOFTMC_SWITCHES)  # (a 0 or 1 given: what it means in an ``if``)
 
     @classmethod
     def literal(cls) -> "SoftMcOptions":
@@ -251,13 +247,8 @@ class TrackerParams:
         if not (0 < s.damping_factor <= MAX_FACTOR):
             raise ParameterError(f"damping_factor (={s.damping_factor!r}) must be > 0 "
                                  f"and <= {MAX_FACTOR:g}")
-        if int(s.max_flops) != s.max_flops or s.max_flops < 1:
-            raise ParameterError(f"max_flops (={s.max_flops!r}) must be an integer >= 1")
-        # (stored as the int / bool they stand for: compiled code reads the fields by their
-        #  annotations, docs/architecture.md "Compiled core")
-        object.__setattr__(self, "max_flops", int(s.max_flops))
-        object.__setattr__(self, "desync_from_current_acceleration",
-                           bool(s.desync_from_current_acceleration))
+        integer(self, "max_flops", 1)
+        boolean(self, "desync_from_current_acceleration")
         if not s.max_flops_time_s > 0:
             raise ParameterError(f"max_flops_time_s (={s.max_flops_time_s!r}) must be > 0")
         if not s.approach_timeout_s > 0:

@@ -18,6 +18,8 @@ import inspect
 import types
 from typing import Any, Callable, TypeVar
 
+from ..errors import ParameterError
+
 T = TypeVar("T")
 
 try:
@@ -127,4 +129,33 @@ def trusted(cls: type[T], name: str) -> Callable[..., T]:
     return make
 
 
-__all__ = ["as_stored", "attributes", "fast_init", "mypyc_attr", "python_class", "trusted"]
+def integer(obj: object, name: str, low: int, high: int | None = None) -> None:
+    """Store the field ``name`` of the frozen ``obj``, read as passed (:func:`as_stored`), as
+    the ``int`` it equals (``6.0`` -> ``6``: compiled code reads the field by its ``int``
+    annotation, docs/architecture.md "Compiled core"); a ParameterError naming the field
+    and its value unless it is an integer in [low...high] (``high`` None: >= low)."""
+    value = getattr(obj, name)
+    if int(value) != value or value < low or (high is not None and value > high):
+        allowed = f"in [{low}...{high}]" if high is not None else f">= {low}"
+        raise ParameterError(f"{name} (={value!r}) must be an integer {allowed}")
+    object.__setattr__(obj, name, int(value))
+
+
+def boolean(obj: object, *names: str) -> None:
+    """Store the fields ``names`` of the frozen ``obj``, read as passed, as the ``bool`` each
+    means in an ``if`` (0 and 1 as False and True: compiled code reads the fields by their
+    ``bool`` annotations, docs/architecture.md "Compiled core")."""
+    for name in names:
+        object.__setattr__(obj, name, bool(getattr(obj, name)))
+
+
+def restore(obj: object, state: dict[str, Any]) -> None:
+    """``__setstate__`` of a class whose ``__getstate__`` is :func:`attributes`: set each
+    attribute of ``state`` back with ``setattr`` (compiled and pure, and a Python subclass's
+    own attributes)."""
+    for name, value in state.items():
+        setattr(obj, name, value)
+
+
+__all__ = ["as_stored", "attributes", "boolean", "fast_init", "integer", "mypyc_attr",
+           "python_class", "restore", "trusted"]
