@@ -7,6 +7,8 @@ same numbers as the core."""
 from __future__ import annotations
 
 import json
+import os
+import shutil
 import subprocess
 import sys
 import textwrap
@@ -161,6 +163,29 @@ def test_numpy_missing_is_an_instantiation_error(fmu_path, tmp_path):
            f"{sys.prefix} that runs this FMU" in text
     assert "-m pip install 'numpy>=1.24'" in text
     assert "Traceback" not in text
+
+
+@pytest.mark.skipif(shutil.which("valgrind") is None, reason="needs valgrind")
+@pytest.mark.parametrize("prepare", ["numpy-missing", "none"])
+def test_no_use_after_free_at_exit(fmu_path, tmp_path, prepare):
+    """pythonfmu's wrapper (0.7.0; pythonfmu3 0.3.4 the same) stays loaded until the host
+    exits (it has GNU unique symbols: dlclose keeps it); there the static destructor of its
+    Python state's shared_ptr runs first and its destructor function then resets the
+    destroyed shared_ptr: a write into the freed block at every exit (valgrind: an invalid
+    read in finalizePythonInterpreter), which aborted the numpy-missing host once ("corrupted
+    double-linked list", exit -6).  The front resets the state first (front.c,
+    release_wrapper_state).  Under valgrind, with Python's allocator off (PYTHONMALLOC=malloc:
+    every block valgrind's)."""
+    script = tmp_path / "host.py"
+    script.write_text(textwrap.dedent(_HOST))
+    log = tmp_path / "valgrind.txt"
+    proc = subprocess.run(["valgrind", f"--log-file={log}", sys.executable, str(script),
+                           str(fmu_path), "0", "5", prepare], capture_output=True, text=True,
+                          timeout=600, cwd=tmp_path, env={**os.environ, "PYTHONMALLOC": "malloc"})
+    assert proc.returncode == 0, f"exit {proc.returncode}\n{proc.stdout}\n{proc.stderr}"
+    text = log.read_text()
+    assert "ERROR SUMMARY" in text  # (valgrind ran the host to its end)
+    assert "finalizePythonInterpreter" not in text, text[text.index("finalizePython") - 800:][:2500]
 
 
 @pytest.mark.parametrize("planner", [0, 1])

@@ -40,6 +40,8 @@
  *    refused.  Where the list cannot be had (Python's C API not found), every call goes to
  *    Python as it is.  FMI 2: the front calls the engine's step itself (fmi2DoStep), not
  *    through the wrapper's doStep; FMI 3 steps through pythonfmu3's.
+ * 7. resets the wrapper's Python state at exit before the wrapper's own exit handlers do, in a
+ *    Python host (see release_wrapper_state: pythonfmu's use-after-free at exit).
  * Every other FMI function jumps straight into the wrapper (an x86_64 trampoline, no cost).
  *
  * Compile-time definitions (set by the build): FMI_VERSION (2 or 3), MODEL (model
@@ -245,6 +247,27 @@ static int load_python(void) {
     return 0;
 }
 
+/* pythonfmu's wrapper (0.7.0, PySlaveInstance.cpp) keeps its Python state in a global
+ * std::shared_ptr (pyState) and resets it again from a destructor function
+ * (onLibraryUnload -> finalizePythonInterpreter: pyState = nullptr).  The wrapper cannot be
+ * unloaded (it defines GNU unique symbols, so dlclose keeps it), so it is still loaded at
+ * exit(), where the exit handlers run the shared_ptr's static destructor first (the state
+ * freed) and the loader's fini then runs the destructor function on the destroyed shared_ptr:
+ * it decrements the use count in the freed block (valgrind: an invalid read in
+ * finalizePythonInterpreter of a block freed by __run_exit_handlers, allocated in
+ * createInstance), which corrupts the heap when glibc has reused the chunk or put it in a
+ * bin (an abort "corrupted double-linked list" at exit, seen once).  This exit handler is
+ * registered after the wrapper was loaded, so it runs before the wrapper's (last in, first
+ * out): it resets the state while it is alive and both later resets find it empty.  Only
+ * in a Python host with no instance left: where the front started Python (a C host) the
+ * state's release finalises it, which a front unloaded early (dlclose runs this handler
+ * then) must not do. */
+static void release_wrapper_state(void) {
+    if (!real_lib || loaded_python || instances) return;
+    void (*reset)(void) = (void (*)(void))dlsym(real_lib, "finalizePythonInterpreter");
+    if (reset) reset();
+}
+
 static void load(void) {
     if (!load_python()) return;
     Dl_info self;
@@ -262,6 +285,7 @@ static void load(void) {
         snprintf(load_error, sizeof load_error, MODEL ": cannot load %s: %s", path, dlerror());
         return;
     }
+    atexit(release_wrapper_state);
 #define RESOLVE(name)                                  \
     {                                                  \
         void *f = dlsym(real_lib, #name);              \
