@@ -50,12 +50,13 @@ class _Slow:
         return out
 
 
-def _controller(stepped_controller, tmp_path, source_of, **kw):
+def _controller(stepped_controller, tmp_path, source_of, cls=Controller, **kw):
+    """A booted, started ``cls`` on a stepped world whose clock counts as real time (the
+    timing figures are taken, on stepped time); its source ``source_of(clock, cfg)``."""
     cfg = load(tmp_path)
     world, _ = stepped_controller(cfg)
-    world.clock.realtime = True  # the timing figures are taken (on stepped time)
-    ctl = Controller(cfg, world.transport, source_of(world.clock, cfg), keep_trace=False,
-                     **kw)
+    world.clock.realtime = True
+    ctl = cls(cfg, world.transport, source_of(world.clock, cfg), keep_trace=False, **kw)
     ctl.boot()
     ctl.start()
     return world, ctl
@@ -99,13 +100,8 @@ def test_startup_check_warns_when_compute_p99_is_over_half_the_period(stepped_co
                                                                       tmp_path, caplog):
     """Compute CPU of 1.2 ms in each 2 ms cycle (60 %) over the first 0.1 s of tracking:
     one warning "cycle_budget" naming the p99 and the share; the run goes on."""
-    cfg = load(tmp_path)
-    world, _ = stepped_controller(cfg)
-    world.clock.realtime = True
-    ctl = _ShortCheck(cfg, world.transport, _Slow(world.clock, 1_200_000, burn=True),
-                      keep_trace=False)
-    ctl.boot()
-    ctl.start()
+    _, ctl = _controller(stepped_controller, tmp_path,
+                         lambda clock, _cfg: _Slow(clock, 1_200_000, burn=True), cls=_ShortCheck)
     ctl.run(max_cycles=120, realtime_gc=False)
     ev = [e for e in ctl.events if e.kind == "cycle_budget"]
     assert len(ev) == 1, [str(e) for e in ctl.events]
@@ -122,13 +118,8 @@ def test_startup_check_warns_when_compute_p99_is_over_half_the_period(stepped_co
 
 def test_startup_check_is_silent_with_headroom(stepped_controller, tmp_path):
     """The plain source's compute (tens of us of CPU) in the same 2 ms cycle: no warning."""
-    cfg = load(tmp_path)
-    world, _ = stepped_controller(cfg)
-    world.clock.realtime = True
-    ctl = _ShortCheck(cfg, world.transport, _Slow(world.clock, 0, burn=True),
-                      keep_trace=False)
-    ctl.boot()
-    ctl.start()
+    _, ctl = _controller(stepped_controller, tmp_path,
+                         lambda clock, _cfg: _Slow(clock, 0, burn=True), cls=_ShortCheck)
     ctl.run(max_cycles=120, realtime_gc=False)
     assert not [e for e in ctl.events if e.kind == "cycle_budget"]
     assert ctl.timing.startup is None  # the check ran
@@ -192,13 +183,8 @@ def test_the_cycles_cpu_outside_the_compute_is_its_own_figure(stepped_controller
     """cpu_wait: the SYNC's send and the input wait, per cycle, beside the compute; with a
     source burning 1 ms of CPU in each of its cycles the compute holds it, the wait does
     not, and the two make up the cycle's CPU."""
-    cfg = load(tmp_path)
-    world, _ = stepped_controller(cfg)
-    world.clock.realtime = True
-    ctl = Controller(cfg, world.transport, _Slow(world.clock, 1_000_000, burn=True),
-                     keep_trace=False)
-    ctl.boot()
-    ctl.start()
+    _, ctl = _controller(stepped_controller, tmp_path,
+                         lambda clock, _cfg: _Slow(clock, 1_000_000, burn=True))
     ctl.run(max_cycles=120, realtime_gc=False)
     tm = ctl.timing
     assert tm.cpu_wait.n == tm.cpu_cycle.n == tm.cpu_compute.n == 120
