@@ -158,6 +158,20 @@ def test_pdo_mapping_follows_cia301(bus):
     assert m.of(0x18B) == [struct.pack("<i", 4_000_000)]  # 6064h only
 
 
+def test_rpdo_mapping_refuses_a_read_only_object(bus):
+    """CiA 301: an RPDO writes the objects it maps, so a read-only one (6064h, position
+    actual value, PDOMapping=1) is refused with 0604 0041h; a writable one (607Ah) is taken."""
+    world, m = bus
+    sdo = m.sdo(11)
+    sdo.download(0x1400, 1, struct.pack("<I", 0x8000020B))  # RPDO1 invalid, then sub0 = 0
+    sdo.download(0x1600, 0, b"\x00")
+    with pytest.raises(SdoAbortError, match="06040041"):
+        sdo.download(0x1600, 1, struct.pack("<I", 0x60640020))
+    sdo.download(0x1600, 1, struct.pack("<I", 0x607A0020))
+    sdo.download(0x1600, 0, b"\x01")
+    assert sdo.upload_uint(0x1600, 1) == 0x607A0020
+
+
 def test_encoder_tpdo_on_sync_wraps_at_6002h(bus):
     world, m = bus
     enc = world.device("encoder")

@@ -582,7 +582,12 @@ class SlaveEngine:
         if obj < 0x1000:
             return  # a dummy entry
         v = odm.variable(self.od, obj, osub)
-        if v is None or not v.pdo_mappable or len(v) != bits:
+        # an RPDO writes what it maps, a TPDO reads it: a read-only object (6064h) cannot be
+        # mapped into an RPDO nor a write-only one into a TPDO (CiA 301: abort 0604 0041h,
+        # "object cannot be mapped to the PDO"; CANopenNode's PDOconfigMap tests its
+        # ODA_RPDO / ODA_TPDO attribute so)
+        if v is None or not v.pdo_mappable or len(v) != bits \
+                or not (v.writable if index < 0x1A00 else v.readable):
             raise SdoAbortError(ABORT_PDO_MAPPING)
 
     def _after_comm_write(self, index: int, sub: int, value: Any) -> None:
