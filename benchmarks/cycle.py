@@ -10,8 +10,9 @@ the controller's clock (``time.perf_counter_ns``):
 - SYNC period jitter: |SYNC-to-SYNC interval - period| (p50 / p99 / max);
 - SYNC lateness: send time - deadline t0 + k*T;
 - master-PDO-to-RPDO latency: encoder TPDO received -> last RPDO of the cycle sent;
-- CPU per cycle: thread CPU time of the controller (the whole cycle, incl. the ~0.3 ms
-  polling before each deadline; and the compute part alone) and process CPU / cycles;
+- CPU per cycle: thread CPU time of the controller from the SYNC's send to the end of the
+  compute (the SYNC send and the input wait, ``cpu_wait``, and the compute part alone; the
+  ~0.3 ms poll before each deadline is not counted) and process CPU / cycles;
 - missed deadlines: cycles whose RPDOs went out after the next SYNC's deadline; overruns:
   cycles that started more than a period late (the controller then slips its time base by
   whole periods instead of sending a burst of SYNCs).
