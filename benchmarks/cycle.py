@@ -70,6 +70,7 @@ from controller.canopen.apps.demo import PhotoEye, PickPlace
 from controller.canopen.apps.report import timing_summary
 
 from controller.canopen.config import load_config
+from controller.canopen.io.cpu_latency import latency_us_arg, request_cpu_latency
 from controller.canopen.io.transport import RealtimeTransport, virtual_bus
 from controller.canopen.master.cycle import Controller
 from controller.canopen.slave.world import SimWorld
@@ -220,6 +221,11 @@ def main(argv=None) -> int:
                    help="SCHED_FIFO priority 50 (needs root / CAP_SYS_NICE)")
     p.add_argument("--cpu", type=int, nargs="+", metavar="N",
                    help="run on these CPUs only (sched_setaffinity)")
+    p.add_argument("--cpu-latency", type=latency_us_arg, metavar="US",
+                   help="hold a CPU wake-up latency bound of US us (PM QoS, "
+                        "/dev/cpu_dma_latency; cantrack run --cpu-latency) for the whole "
+                        "benchmark: the request is system-wide, so the --baseline run, "
+                        "which does not know the option, runs under it too")
     p.add_argument("--baseline", metavar="DIR",
                    help="a checkout of an earlier cantrack (e.g. `git worktree add DIR "
                         "<commit>`): its benchmarks/cycle.py runs first with the same options, "
@@ -234,13 +240,20 @@ def main(argv=None) -> int:
         os.sched_setaffinity(0, set(args.cpu))
     if args.switch_interval:
         sys.setswitchinterval(args.switch_interval)
+    # (held until this process exits: the baseline's child process runs under it as well)
+    latency_req, warning = request_cpu_latency(args.cpu_latency)
+    if warning:
+        print(f"warning: {warning}", file=sys.stderr)
+    latency = ("no CPU latency request" if latency_req is None else
+               f"CPU latency request {latency_req.latency_us} us (effective "
+               f"{latency_req.effective_us} us)")
     before = run_baseline(args, argv) if args.baseline else None
     results = {}
     print(f"python {sys.version.split()[0]}, {os.cpu_count()} CPUs, load average "
           f"{os.getloadavg()[0]:.2f}, {args.seconds:g} s per run"
           + (", SCHED_FIFO" if args.fifo else "")
           + f", GIL switch interval {sys.getswitchinterval() * 1e3:g} ms"
-          + f", spin {args.spin_us:g} us, devices {args.devices}")
+          + f", spin {args.spin_us:g} us, devices {args.devices}, {latency}")
     with tempfile.TemporaryDirectory() as tmp:
         for period_ms in args.periods:
             period_us = round(period_ms * 1000)
@@ -321,6 +334,7 @@ def main(argv=None) -> int:
     if before is not None:
         print_before_after(before, results)
         results["baseline"] = before
+    results["cpu_latency_us"] = None if latency_req is None else latency_req.latency_us
     if args.json:
         Path(args.json).write_text(json.dumps(results, indent=2, default=str))
     return 0
@@ -339,7 +353,8 @@ def run_baseline(args, argv) -> dict:
     clean = _baseline_options(opts, _options_of(script, env))
     # (--cpu and --fifo act on this process before the baseline starts: its process inherits
     #  the CPU affinity and the scheduling policy, so an older cycle.py without them runs
-    #  under the same conditions)
+    #  under the same conditions; --cpu-latency's request is system-wide while this process
+    #  holds it)
     print(f"== baseline: {base} (git {_git_head(base)}) ==", flush=True)
     r = subprocess.run([sys.executable, str(script), *clean,
                         "--json", str(out)], env=env, cwd=str(base), text=True,

@@ -47,6 +47,7 @@ from ..canopen.apps.report import Telemetry, status_line, summary_table, timing_
 from ..canopen.config import load_config
 from ..canopen.config.busload import check_bus_load
 from ..canopen.io import canbus
+from ..canopen.io.cpu_latency import latency_us_arg, request_cpu_latency
 from ..canopen.io.files import write_json_atomic
 from ..canopen.io.rotating import add_arguments as add_rotation_arguments
 from ..canopen.io.transport import RealtimeTransport
@@ -87,6 +88,11 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
                         "root or CAP_SYS_NICE)")
     p.add_argument("--cpu", type=int, nargs="+", metavar="N",
                    help="run on these CPUs only (sched_setaffinity; e.g. an isolated core)")
+    p.add_argument("--cpu-latency", type=latency_us_arg, metavar="US",
+                   help="hold a CPU wake-up latency bound of US microseconds for the run "
+                        "(Linux PM QoS, /dev/cpu_dma_latency; 0: the CPUs poll instead of "
+                        "sleeping between cycles, as cyclictest does; needs root; "
+                        "docs/hil.md)")
     add_rotation_arguments(p, "the telemetry")
     return p
 
@@ -357,6 +363,10 @@ def main(argv: list[str] | None = None, prog: str = "cantrack run") -> int:
             extra.update(finish_telemetry(telemetry[0], app))
         telemetry[0].close(end, error, extra=extra)
 
+    # (held from here to the end of the run; the kernel drops it too if the process dies)
+    cpu_latency, latency_warning = request_cpu_latency(args.cpu_latency)
+    if latency_warning:
+        print(f"cantrack: warning: {latency_warning}", file=sys.stderr)
     end, error, code = "duration", None, 0
     try:
         if args.ready_file:  # (from here on SIGTERM is handled and the file is removed)
@@ -389,6 +399,8 @@ def main(argv: list[str] | None = None, prog: str = "cantrack run") -> int:
         transport.close()
         canbus.remove_ready_file(args.ready_file)
         status.close()
+        if cpu_latency is not None:
+            cpu_latency.release()
     code = ctl.exit_code()
     close_telemetry(end, error, code)
     if args.report:

@@ -443,7 +443,7 @@ class Controller:
                         f"{streak} SYNC deadlines missed in a row (RPDOs after the next SYNC; "
                         f"compute p99 {c['p99']:.0f} us of the {self.period_ns / 1e3:.0f} us "
                         f"cycle): the machine cannot keep this cycle (longer sync_period, "
-                        f"SCHED_FIFO, a CPU of its own)")
+                        f"SCHED_FIFO, a CPU of its own, --cpu-latency 0)")
 
     def _check_budget(self, k: int) -> None:
         """The start-up check: compute p99 over the first seconds against the period."""
