@@ -31,6 +31,8 @@ a 1 Mbit/s bus, which a real bus cannot carry; the load is printed for reference
 
     python benchmarks/cycle.py                     # 60 s at 2 ms, then 60 s at 1 ms
     python benchmarks/cycle.py --seconds 10 --periods 2 --json out.json [--fifo]
+    python benchmarks/cycle.py --cpu-latency 0 ...  # CPUs that do not sleep deeply (root;
+                                                    # docs/hil.md "CPU wake-up latency")
 
 Targets: 2 ms: no missed deadline and SYNC jitter p99 <= 200 us; 1 ms: <= 0.1 % missed.
 Issue 12's (printed PASS/FAIL for every period): missed deadlines <= 2 x the floor's in the
