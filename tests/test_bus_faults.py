@@ -360,7 +360,7 @@ def step(self, ctx):
 follow.ConveyorFollow.step = step
 try:
     rc = cmd_run.main([sys.argv[1], "-i", "virtual", "-c", "bug", "-q", "--duration", "3",
-                       "--report", sys.argv[2]])
+                       "--report", sys.argv[2], "--cpu-latency", "0"])
 except Exception as exc:  # the CLI turns a CantrackError into exit 2 and one line
     print(f"cantrack: error: {exc}", file=sys.stderr)
     rc = 2
@@ -392,3 +392,12 @@ def test_run_with_an_injected_exception_writes_the_report_and_exits_2(tmp_path):
                                                                   "node 12 (y)": True}
     assert all(d["state"] != "operation enabled" for d in rep["drives"])
     assert "'operation enabled'" not in r.stdout.split("STATES", 1)[1]
+    # what the run had of the real-time settings, as the kernel says: the CPU latency request
+    # held (as root, where the PM QoS device is) or a warning saying why not
+    import os
+    rt = rep["realtime"]
+    assert rt["policy"] == "SCHED_OTHER" and rt["cpus"] == sorted(os.sched_getaffinity(0))
+    if os.access("/dev/cpu_dma_latency", os.W_OK):
+        assert rt["cpu_latency_us"] == {"requested": 0, "effective": 0}, rt
+    else:
+        assert rt["cpu_latency_us"] is None and "--cpu-latency 0: /dev/cpu_dma_latency" in r.stderr

@@ -47,7 +47,7 @@ from ..canopen.apps.report import Telemetry, status_line, summary_table, timing_
 from ..canopen.config import load_config
 from ..canopen.config.busload import check_bus_load
 from ..canopen.io import canbus
-from ..canopen.io.cpu_latency import latency_us_arg, request_cpu_latency
+from ..canopen.io.cpu_latency import CpuLatencyRequest, latency_us_arg, request_cpu_latency
 from ..canopen.io.files import write_json_atomic
 from ..canopen.io.rotating import add_arguments as add_rotation_arguments
 from ..canopen.io.transport import RealtimeTransport
@@ -223,10 +223,12 @@ def _node_of(cfg, source: str) -> int | None:
 
 
 def run_report(ctl: Controller, changes, pdos: BootHeartbeat,
-               exit_code: int, end: str, wall_s: float, error: str | None = None) -> dict:
+               exit_code: int, end: str, wall_s: float, error: str | None = None,
+               realtime: dict | None = None) -> dict:
     """The ``--report`` JSON of a run (see the module docstring): summaries, never a list
     per cycle (the last events, the last state changes, the PDOs of the last cycles, the
-    counts of every sequence of PDOs sent after a SYNC)."""
+    counts of every sequence of PDOs sent after a SYNC); ``realtime``: what the run got of
+    the scheduling options (:func:`realtime_settings`)."""
     cfg = ctl.cfg
     m = cfg.master
     seqs, last = pdos.pdo_summary()
@@ -259,7 +261,25 @@ def run_report(ctl: Controller, changes, pdos: BootHeartbeat,
         "sent_pdos_last": last,
         "sent_pdo_sequences": [{"cob_ids": list(k), "cycles": v} for k, v in seqs.items()],
         "timing": timing_summary(ctl) if ctl.k else None,
+        "realtime": realtime,
     }
+
+
+def realtime_settings(cpu_latency: CpuLatencyRequest | None) -> dict:
+    """The scheduling this process runs with (as the kernel says, not as asked): policy and
+    priority, the CPUs, the CPU latency request held (the bound asked for, the system's
+    effective one) or None."""
+    try:
+        policy = os.sched_getscheduler(0)
+        prio = os.sched_getparam(0).sched_priority
+        cpus: list[int] | None = sorted(os.sched_getaffinity(0))
+    except (AttributeError, OSError):  # (not Linux)
+        policy, prio, cpus = None, None, None
+    names = {getattr(os, n): n for n in ("SCHED_OTHER", "SCHED_FIFO", "SCHED_RR",
+                                         "SCHED_BATCH", "SCHED_IDLE") if hasattr(os, n)}
+    return {"policy": names.get(policy, policy), "priority": prio, "cpus": cpus,
+            "cpu_latency_us": None if cpu_latency is None else {
+                "requested": cpu_latency.latency_us, "effective": cpu_latency.effective_us}}
 
 
 def _pdo_cobs(cfg) -> dict:
@@ -392,7 +412,8 @@ def main(argv: list[str] | None = None, prog: str = "cantrack run") -> int:
             close_telemetry(end, error, EXIT_ERROR)
             if args.report:
                 write_json_atomic(args.report, run_report(
-                    ctl, changes, transport, EXIT_ERROR, end, time.perf_counter() - wall0, error))
+                    ctl, changes, transport, EXIT_ERROR, end, time.perf_counter() - wall0, error,
+                    realtime_settings(cpu_latency)))
             raise
     finally:
         signals.__exit__()
@@ -405,7 +426,8 @@ def main(argv: list[str] | None = None, prog: str = "cantrack run") -> int:
     close_telemetry(end, error, code)
     if args.report:
         write_json_atomic(args.report, run_report(ctl, changes, transport, code, end,
-                                                  time.perf_counter() - wall0, error))
+                                                  time.perf_counter() - wall0, error,
+                                                  realtime_settings(cpu_latency)))
     if isinstance(app, CellSource):
         print(format_cell_table(app))
         print()

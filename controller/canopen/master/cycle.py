@@ -457,7 +457,8 @@ class Controller:
                             f"cycle budget tight: compute p99 {p99 / 1e3:.0f} us = "
                             f"{100 * share:.0f} % of the {self.period_ns / 1e3:.0f} us period "
                             f"over the first {self.BUDGET_CHECK_S:g} s (> "
-                            f"{100 * self.BUDGET_SHARE:.0f} %): expect missed deadlines",
+                            f"{100 * self.BUDGET_SHARE:.0f} %): expect missed deadlines "
+                            f"(SCHED_FIFO, a CPU of its own, --cpu-latency 0: docs/hil.md)",
                             level=30)
 
     def _inputs_complete(self) -> bool:
