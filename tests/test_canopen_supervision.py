@@ -56,6 +56,27 @@ def test_lost_heartbeat_quick_stops_all_drives(make):
     assert [n for n, _, _ in world.device("x").transitions][-2:] == [11, 12]
 
 
+def test_heartbeat_consumer_is_asked_only_when_a_time_out_may_be_due(make):
+    """The cycle asks the heartbeat consumer only when a time-out may have passed or a
+    heartbeat showed another NMT state (``quiet_until_ns``; before, every cycle): 500
+    cycles at 2 ms with heartbeats every 50 ms (time-out 150 ms) ask it some 10 times."""
+    world, ctl = make()
+    hb = ctl.heartbeats
+    asked = []
+    check = hb.check
+    hb.check = lambda now_ns: asked.append(now_ns) or check(now_ns)
+    ctl.run(max_cycles=500)
+    assert not reactions(ctl)
+    assert 1 <= len(asked) <= 25, len(asked)
+    # a heartbeat that shows another state makes the next cycle ask at once
+    hb._on_heartbeat(0x700 + 12, bytes((0x7F,)), ctl.clock.now_ns())
+    assert hb.quiet_until_ns == -math.inf
+    n = len(asked)
+    ctl.step()
+    assert len(asked) == n + 1
+    assert ("node 12 (y)", "nmt_state") in [(e.source, e.kind) for e in ctl.events]
+
+
 def test_drive_fault_quick_stops_the_others(make):
     world, ctl = make()
     world.at(T_FAULT, lambda: world.device("x").inject_fault(0x2310))

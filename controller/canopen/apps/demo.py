@@ -49,7 +49,7 @@ from __future__ import annotations
 import math
 import random
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from enum import Enum, StrEnum
 from typing import TYPE_CHECKING
@@ -67,6 +67,7 @@ from ...conveyor.location import q_to_axis_angle, vec3
 from ...conveyor.sources import SourceState
 from ...limits import CartesianLimits, Limits
 from ...tracking import Imfs, Mode, MotionState, Tracker, TrackState
+from ...tracking.types import motion_state
 from ...errors import StateError
 from ..config.demo import DemoConfig
 from ..config.plc import TriggerOverflow
@@ -97,6 +98,13 @@ class Step(Enum):
     FOLLOW = "follow"
     PLACE = "place"
 
+
+#: the per-cycle tests' enum members as module globals (an Enum member read from its class
+#: costs some 45 ns more than a global; the step reads several each cycle)
+_WAIT, _APPROACH, _FOLLOW, _PLACE = Step.WAIT, Step.APPROACH, Step.FOLLOW, Step.PLACE
+_SYNCHRONIZED = Imfs.SYNCHRONIZED
+_TRACK_OFF = TrackState.OFF
+_MASTER_LOSS = (MasterEvent.SILENT, MasterEvent.LOST)
 
 class Outcome(StrEnum):
     """What became of an item (its value is what the summary and telemetry print)."""
@@ -131,6 +139,10 @@ class Item:
     entry_id: int | None = None  # its TRIGGER entry in the robot's buffer
     item_type: int = 0  # its class (.demo.item_types; .tracking.items.track_types)
     model: dict = field(default_factory=dict)  # the conveyor model's ItemRecord.as_dict()
+
+
+#: what :meth:`PhotoEye.edges_until` returns when no edge is due (nearly every cycle)
+_NO_ITEMS: tuple[Item, ...] = ()
 
 
 class PhotoEye:
@@ -217,8 +229,11 @@ class PhotoEye:
         self._extra.append(item)
         return item
 
-    def edges_until(self, t_ns: int) -> list[Item]:
+    def edges_until(self, t_ns: int) -> Sequence[Item]:
         """The items whose edge is at or before ``t_ns``, in edge order."""
+        nxt = self._made_next
+        if not self._extra and (nxt is None or nxt.t_edge_ns > t_ns):
+            return _NO_ITEMS  # (no edge due: nearly every cycle, no list made)
         out = []
         while True:
             nxt = self._made_next
@@ -378,10 +393,13 @@ class PickPlace:
         """One cycle of the sequence (see the module docstring): the PLC's commands, a lost
         master, the photo-eye's edges, the sequence, the robot group; its setpoint through the
         pass-through tracker."""
-        r, f = self._cell()
+        r, f = self.robot, self.frame
+        if r is None or f is None:
+            r, f = self._cell()  # (raises: not set up)
         tracker = self.tracker
         assert tracker is not None
-        self._events = []
+        if self._events:  # (the last step's; an empty list is kept: no list per cycle)
+            self._events = []
         for cmd in ctx.commands:
             if isinstance(cmd, Engage):
                 self._engage(cmd.mode)
@@ -389,7 +407,7 @@ class PickPlace:
                 self._track_types(cmd.types)
             elif self.eye is not None:
                 self.eye.trigger(cmd.t_ns, item_type=cmd.item_type)
-        if ctx.master.event in (MasterEvent.SILENT, MasterEvent.LOST):
+        if ctx.master.event in _MASTER_LOSS:
             desync_on_master_loss(tracker, ctx.master.event)
             self._master_lost()
         m = self._update(ctx, r, f)
@@ -403,12 +421,13 @@ class PickPlace:
     def _update(self, ctx: CycleContext, r: RobotGroup, f: MovingFrame) -> MotionState:
         T = self._T
         cycle = ctx.cycle
-        belt = ctx.master.estimate
-        master_ready = ctx.master.ready
+        master = ctx.master
+        belt = master.estimate
+        master_ready = master.ready
         t_now = ctx.t_ns
         f.set_master([SourceState(belt.pos, belt.vel, belt.acc)], r.k)
         for item in self.eye.edges_until(t_now):
-            s_meas = ctx.master.belt_mm if ctx.master.belt_mm is not None else belt.pos
+            s_meas = master.belt_mm if master.belt_mm is not None else belt.pos
             item.s_item = s_meas - belt.vel * (t_now - item.t_edge_ns) * 1e-9
             item.trigger_cycle = cycle
             if r.buffer.full and not self._make_room(ctx, item):
@@ -420,7 +439,7 @@ class PickPlace:
             if types is not None and item.item_type not in types:
                 self._finish_item(item, Outcome.IGNORED, f"type {item.item_type} not tracked")
         step = self.stage
-        if step == Step.WAIT:
+        if step is _WAIT:
             entry = r.buffer.current(f.name, r.tracked_types(f))
             while entry is not None and (entry.id not in self._by_entry
                                          or self._by_entry[entry.id].outcome is not Outcome.PENDING):
@@ -436,13 +455,16 @@ class PickPlace:
                                   z[2]), q_axis_angle((0.0, 0.0, 1.0), item.angle)),
                         name=f"approach item {item.index}")
                 self.stage = Step.APPROACH
-        elif step == Step.APPROACH:
-            if r.imfs == Imfs.SYNCHRONIZED and not r.virtual.busy:
+        elif step is _APPROACH:
+            if r.imfs == _SYNCHRONIZED and not r.virtual.busy:
                 self._until = cycle + round(self.demo.pick_dwell_s / T)
                 self.stage = Step.FOLLOW
-        elif step == Step.FOLLOW:
+        elif step is _FOLLOW:
             item = self.current
-            item.max_error_mm = max(item.max_error_mm, ctx.tracking_error_mm)
+            assert item is not None  # (APPROACH and FOLLOW have their item)
+            error = ctx.tracking_error_mm
+            if error > item.max_error_mm:  # (max() written out)
+                item.max_error_mm = error
             if cycle >= self._until:
                 item.picked_cycle = cycle
                 item.u_pick = self.demo.photo_eye + belt.pos - item.s_item
@@ -452,8 +474,9 @@ class PickPlace:
                 r.moves(Location(tuple(p), q_axis_angle((0.0, 0.0, 1.0), self.demo.place_angle)),
                         name="place")
                 self.stage = Step.PLACE
-        elif step == Step.PLACE:
+        elif step is _PLACE:
             item = self.current
+            assert item is not None  # (PLACE has the item picked)
             if not r.virtual.busy and not r.links:
                 if item.placed_cycle is None:
                     item.placed_cycle = cycle
@@ -461,7 +484,7 @@ class PickPlace:
                     self._finish_item(item, Outcome.PLACED)
                     self.stage = Step.WAIT
         tracker = self.tracker
-        if tracker is not None and tracker.state is TrackState.OFF and master_ready:
+        if tracker is not None and tracker.state is _TRACK_OFF and master_ready:
             tracker.engage(Mode.ABSOLUTE)  # (de-synced by a silent encoder: follow again)
         out = r.update()
         self._robot_imfs = out.imfs  # (the status of this step: nothing below changes it)
@@ -499,7 +522,10 @@ class PickPlace:
         u0, u1, u2 = prev.vel
         acc = ((v0 - u0) / T, (v1 - u1) / T, (v2 - u2) / T)
         ang_vel = (ang - prev.ang) / T
-        m = MotionState(vec3(loc.pos), vel, acc, ang, ang_vel, (ang_vel - prev.ang_vel) / T)
+        # (MotionState without its __post_init__: every vector here is a tuple of Python
+        #  floats already -- the compiled robot group's, or computed from them -- which the
+        #  check would keep as given)
+        m = motion_state(vec3(loc.pos), vel, acc, ang, ang_vel, (ang_vel - prev.ang_vel) / T)
         self._prev = m
         return m
 

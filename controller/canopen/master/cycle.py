@@ -117,6 +117,15 @@ class Phase(Enum):
     STOPPED = "stopped"
 
 
+#: the phases, the tracking-off state and the controlwords of the per-cycle tests as module
+#: globals: an Enum member read from its class costs some 45 ns more than a global (each
+#: cycle reads a dozen of them)
+_ENABLING, _RUNNING, _STOPPING, _STOPPED = (Phase.ENABLING, Phase.RUNNING, Phase.STOPPING,
+                                            Phase.STOPPED)
+_TRACK_OFF = TrackState.OFF
+_CW_ENABLE, _CW_QUICK_STOP = cia402.CW_ENABLE, cia402.CW_QUICK_STOP_CMD
+
+
 @dataclass(slots=True)
 class CycleRecord:
     """What one cycle did (units: mm/deg for joints, counts for drive values, s, us)."""
@@ -245,9 +254,10 @@ class Controller:
         self.reactions = self.tc.reactions
         self.stage_cycles = max(1, math.ceil(self.tc.timeouts.stop_s / cfg.period_s))
         self.stops = [DriveStop(a.label, a.node_id) for a in self.axes]
-        #: per axis (its AxisIO, min, max [mm|deg], quick-stop deceleration) for the limit
-        #: check, and the (joint, x/y/z) index pairs of the translation axes
-        self._limits = [(a, a.scale.min, a.scale.max, a.quick_stop_decel) for a in self.axes]
+        #: per axis (its AxisIO, min, max [mm|deg], quick-stop deceleration, twice that) for
+        #: the limit check, and the (joint, x/y/z) index pairs of the translation axes
+        self._limits = [(a, a.scale.min, a.scale.max, a.quick_stop_decel,
+                         2.0 * a.quick_stop_decel) for a in self.axes]
         self._xyz = [(j, "xyz".find(name)) for j, name in enumerate(self.kinematics.axes)
                      if "xyz".find(name) >= 0] if cell is None else []
         #: per translation axis (AxisIO, x/y/z index i, the counts conversion's sign, zero and
@@ -346,7 +356,7 @@ class Controller:
         """Run one cycle (SYNC k ... RPDOs for SYNC k+1); first the SDO transfers the
         source asked for in the last cycle."""
         program, self._transfers = self._transfers, None
-        if program is not None and self.phase is Phase.RUNNING:
+        if program is not None and self.phase is _RUNNING:
             self._run_transfers(program)
         k = self.k
         clock = self.clock
@@ -409,7 +419,7 @@ class Controller:
                 tm.missed_run.miss()
             if not complete:
                 tm.late_inputs += 1
-            if tm.startup is not None and self.phase is Phase.RUNNING:
+            if tm.startup is not None and self.phase is _RUNNING:
                 tm.startup.append(cpu2 - cpu1)
                 if len(tm.startup) >= self._budget_cycles:
                     self._check_budget(k)
@@ -418,7 +428,9 @@ class Controller:
                 rec.compute_us = (t_done - t_c) / 1e3
         self._last_sync_sent = t_sent
         self.last_sync_ns = t_sent
-        self._produce_heartbeat(t_done)
+        hb_next = self._hb_next
+        if hb_next is not None and t_done >= hb_next:  # (tested here: due every 50th cycle)
+            self._produce_heartbeat(t_done)
         if self._gc_paused and k % self.GC_EVERY_CYCLES == 0 \
                 and clock.now_ns() < deadline + self.period_ns // 2:
             # the collector is off while cycling (gc.freeze moved everything older into the
@@ -503,10 +515,10 @@ class Controller:
                     self._master_report(m, ev, k, t_s)
         phase = self.phase
         setpoint = None
-        if phase is Phase.ENABLING:
-            self._enable_step(k, t_s)
-        elif phase is Phase.RUNNING:
+        if phase is _RUNNING:  # (the cycle's phase nearly always: tested first)
             setpoint = self._run_step(k, t_s, deadline, est)
+        elif phase is _ENABLING:
+            self._enable_step(k, t_s)
         else:
             self._commands.clear()  # (no source runs any more: nothing takes them)
             self._stop_step(k)
@@ -691,6 +703,7 @@ class Controller:
         for e in out.events:
             self.events.add(k, t_s, e.source, e.kind, e.detail, e.reaction, level=e.level)
         sp = out.setpoint
+        kinematics = self.kinematics
         if isinstance(sp, AxisSetpoints):
             joints = sp.positions
             if len(joints) != len(self.axes):
@@ -704,9 +717,9 @@ class Controller:
                 raise CycleError("a cell's setpoint source must give every drive's target "
                                  "(axis setpoints: each robot has its own kinematics), not "
                                  "one tool setpoint")
-            joints = self.kinematics.joints(sp)
+            joints = kinematics.joints(sp)
             commands_out = None
-            bad = self._limit_violation(joints, self.kinematics.joint_velocities(sp))
+            bad = self._limit_violation(joints, kinematics.joint_velocities(sp))
         if out.stop is not None:  # (at the time it is made, like the cycle's own reactions)
             self.quick_stop(k, (self.clock.now_ns() - self.t0) * 1e-9, out.stop.source,
                             out.stop.kind, out.stop.detail)
@@ -728,19 +741,20 @@ class Controller:
             for i, (a, c) in enumerate(zip(self.axes, counts)):
                 a.send(commands_out[i].controlword, c)
         else:
-            cw = cia402.CW_QUICK_STOP_CMD if self.phase is Phase.STOPPING else cia402.CW_ENABLE
+            cw = _CW_QUICK_STOP if self.phase is _STOPPING else _CW_ENABLE
             for a, c in zip(self.axes, counts):
                 a.send(cw, c)
         if out.target is not None:
             # the tracked target (relative mode: the master plus the offset kept at engage)
-            self._master_for[k + self.master.lead] = out.target
+            self._master_for[k + m.lead] = out.target
         return joints
 
     def _limit_violation(self, joints, velocities) -> tuple[AxisIO, str] | None:
         """The first axis whose setpoint, or the point where a quick stop from the
         setpoint's velocity would end (6085h deceleration), is outside its limits."""
-        for (a, lo, hi, decel), p, v in zip(self._limits, joints, velocities):
-            stop = p + v * abs(v) / (2.0 * decel) if decel > 0 else p
+        for (a, lo, hi, decel, decel2), p, v in zip(self._limits, joints, velocities):
+            # (2 x decel made once: the same double; decel2 > 0 exactly when decel > 0)
+            stop = p + v * abs(v) / decel2 if decel2 > 0 else p
             if not (lo <= p <= hi and lo <= stop <= hi):
                 sc = a.scale
                 unit = sc.unit
@@ -933,21 +947,25 @@ class Controller:
         if self.actors.queue:
             for source, d, detail in self.actors.pop_all():
                 self.disturbance(k, t_s, source, d, detail)
-        for label, kind, detail in self.heartbeats.check(now):
+        heartbeats = self.heartbeats
+        # (asked only when a heartbeat showed a state or a time-out may be due: nearly never)
+        for label, kind, detail in heartbeats.check(now) \
+                if now > heartbeats.quiet_until_ns else ():
             if kind == "node_reset":
                 self.disturbance(k, t_s, label, Disturbance.NODE_RESET, detail)
             elif kind == "heartbeat_lost" and label not in self._motion_labels:
                 self.disturbance(k, t_s, label, Disturbance.IO_NODE_LOST, detail)
             else:
                 self.quick_stop(k, t_s, label, kind, detail)
-        for e in (self.emcy.pop_all() if self.emcy.queue else ()):
+        for e in self.emcy.pop_all() if self.emcy.queue else ():
             if e.is_reset:
                 self.events.add(k, t_s, e.label, "emcy", f"{e}: error reset", level=20)
             elif e.node_id in {a.node_id for a in self.axes}:
                 self.quick_stop(k, t_s, e.label, "emcy", str(e))
             else:
                 self.events.add(k, t_s, e.label, "emcy", str(e), "reported")
-        if self.phase in (Phase.STOPPING, Phase.STOPPED):
+        phase = self.phase
+        if phase is _STOPPING or phase is _STOPPED:
             for a in self.axes:
                 st = a.input.state if a.fresh(k) else None
                 if st in (State.FAULT, State.FAULT_REACTION_ACTIVE):
@@ -957,8 +975,7 @@ class Controller:
                                         f"statusword {a.input.statusword:04X}h ({st.value})",
                                         "(already stopping)")
             return
-        phase = self.phase
-        if phase is not Phase.ENABLING and phase is not Phase.RUNNING:
+        if phase is not _ENABLING and phase is not _RUNNING:
             return
         silent = self._drive_silent
         for i, a in enumerate(self.axes):
@@ -970,8 +987,7 @@ class Controller:
                                     f"no TPDO for {silent[i]} cycles")
                 continue
             silent[i] = 0
-            sw = inp.statusword
-            st = inp.state
+            sw, _, _, _, st = inp  # (DriveInput unpacked: cheaper than two field reads)
             if st is _ENABLED and not sw & _SW_FOLLOWING_ERROR:
                 continue  # the running drive: nothing to report
             if st in _FAULT_STATES:
@@ -1024,7 +1040,7 @@ class Controller:
         err = 0.0
         m_k = self._master_for.pop(k, None)  # the master predicted for this SYNC
         if m_k is not None and self.tracking and \
-                self.status.tracker_state is not TrackState.OFF:
+                self.status.tracker_state is not _TRACK_OFF:
             if actual is not None:
                 err = self._translation_error(actual, m_k)
             else:  # (_actual()'s conversion of the x, y, z axes only, then the same sum)

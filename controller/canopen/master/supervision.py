@@ -82,17 +82,18 @@ class HeartbeatMonitor:
         self.hygiene = hygiene if hygiene is not None else FrameHygiene()
         self.watches: dict[int, _Watch] = {}
         self.expected_state = 5
-        #: :meth:`check` has nothing to find before this time [ns] (no time-out can have
-        #: passed) unless a heartbeat showed a state (``_news``); a heartbeat only moves a
-        #: time-out later, so an earlier value is merely a check too many
-        self._due: float = -math.inf
-        self._news = True
+        #: :meth:`check` has nothing to find up to this time [ns]: no time-out can have passed
+        #: and no heartbeat showed a state since the last check (one that does sets it to
+        #: -inf); a heartbeat only moves a time-out later, so an earlier value is merely a
+        #: check too many.  The cycle compares it before calling :meth:`check` (one test per
+        #: cycle instead of a call)
+        self.quiet_until_ns: float = -math.inf
 
     def watch(self, node_id: int, label: str, timeout_ns: int) -> None:
         w = _Watch(label, node_id, timeout_ns)
         self.watches[node_id] = w
         self.transport.subscribe(0x700 + node_id, self._on_heartbeat)
-        self._due, self._news = -math.inf, True
+        self.quiet_until_ns = -math.inf
 
     def start(self, now_ns: int) -> None:
         """Begin the time-out checks now (nodes that never sent count from here)."""
@@ -100,7 +101,7 @@ class HeartbeatMonitor:
             w.state = None  # boot-up and pre-operational heartbeats of the boot are expected
             if w.last_ns is None:
                 w.last_ns = now_ns
-        self._due, self._news = -math.inf, True
+        self.quiet_until_ns = -math.inf
 
     def _on_heartbeat(self, can_id: int, data: bytes, t_ns: int) -> None:
         w = self.watches.get(can_id - 0x700)
@@ -111,15 +112,16 @@ class HeartbeatMonitor:
         w.state = data[0] & 0x7F
         w.lost = False
         if w.state != self.expected_state:
-            self._news = True
-        if w.timeout_ns > 0 and t_ns + w.timeout_ns < self._due:
-            self._due = t_ns + w.timeout_ns  # (a lost node back: its time-out counts again)
+            self.quiet_until_ns = -math.inf  # (news: the next check reports it)
+        elif w.timeout_ns > 0 and t_ns + w.timeout_ns < self.quiet_until_ns:
+            # (a lost node back: its time-out counts again)
+            self.quiet_until_ns = t_ns + w.timeout_ns
 
     def check(self, now_ns: int) -> list[tuple[str, str, str]]:
         """New findings as (label, kind, detail): kind heartbeat_lost / node_reset (a
         boot-up: the node reset itself) / nmt_state (stopped, pre-operational, ...)."""
-        if now_ns <= self._due and not self._news:
-            return []  # (nearly every cycle: no time-out due, no state shown)
+        if now_ns <= self.quiet_until_ns:
+            return []  # (no time-out due, no state shown)
         out = []
         due = math.inf
         for w in self.watches.values():
@@ -140,7 +142,7 @@ class HeartbeatMonitor:
                 else:
                     out.append((w.label, "nmt_state", f"heartbeat shows NMT state {name}"))
                 w.state = None  # report once per heartbeat
-        self._due, self._news = due, False
+        self.quiet_until_ns = due
         return out
 
 

@@ -14,6 +14,9 @@ from __future__ import annotations
 
 from ..io.transport import Transport
 
+#: the SYNC's data for each counter value (made once: no bytes object per cycle)
+_COUNTER_DATA = tuple(bytes((c,)) for c in range(241))
+
 
 class SyncProducer:
     def __init__(self, transport: Transport, cob_id: int = 0x80, overflow: int = 0) -> None:
@@ -31,6 +34,6 @@ class SyncProducer:
         if not self.overflow:
             self.transport.send(self.cob_id, b"")
             return None
-        self.counter = self.counter % self.overflow + 1
-        self.transport.send(self.cob_id, bytes((self.counter,)))
-        return self.counter
+        counter = self.counter = self.counter % self.overflow + 1
+        self.transport.send(self.cob_id, _COUNTER_DATA[counter])
+        return counter
