@@ -1,8 +1,9 @@
 """Build of the compiled tracking core (docs/architecture.md "Compiled core").
 
 ``pip install .`` and ``pip install -e .`` compile the modules of ``controller/tracking`` (all
-but ``PURE_ONLY``) with mypyc: the same source, checked by mypy and turned into C extension
-modules, about 1.6x faster in the cycle's hot path.  Everything else (metadata, packages,
+but ``PURE_ONLY``; and of the other ``PACKAGES``, and the single ``MODULES``) with mypyc: the
+same source, checked by mypy and turned into C extension modules, about 1.6x faster in the
+cycle's hot path.  Everything else (metadata, packages,
 package data) is in pyproject.toml.
 
 - ``CANTRACK_NO_EXTENSIONS=1`` (a boolean: unset, "", "0", "false", "no", "off" are off)
@@ -40,6 +41,9 @@ TRACKING = CONTROLLER / "tracking"
 #: the compiled packages (directories of ``controller/``): the cycle's per-sample path
 #: (tracking core, conveyor model, kinematics), one group so that their calls stay native
 PACKAGES = ("tracking", "conveyor", "conveyor/frames", "kinematics")
+#: single compiled modules of packages that otherwise stay Python (docs/architecture.md
+#: "Compiled core"): the demo's setpoint source, the encoder's and the drives' cycle I/O
+MODULES = ("canopen/apps/demo.py", "canopen/master/masterio.py", "canopen/master/axisio.py")
 MANIFEST = "_native_manifest.json"
 #: the mypyc group: one shared library ``controller/tracking/_core__mypyc.*.so`` beside the
 #: modules' small import shims
@@ -55,7 +59,11 @@ no_implicit_optional = True
 [mypy-numpy,numpy.*,ruckig,ruckig.*]
 follow_imports = skip
 ignore_missing_imports = True
+[mypy-controller.canopen,controller.canopen.*]
+follow_imports = skip
 """
+# (the last section: what MODULES import from the CANopen shell is Any to the C code, which so
+#  depends on none of those modules: _read_modules has none of them)
 
 
 def _warn(message: str) -> None:
@@ -72,8 +80,9 @@ PURE_ONLY = {"tracking/batch.py", "tracking/metrics.py", "conveyor/errors.py"}
 
 
 def _sources() -> list[Path]:
-    return sorted(p for package in PACKAGES for p in (CONTROLLER / package).glob("*.py")
-                  if p.name != "__init__.py" and _name(p) not in PURE_ONLY)
+    return sorted([p for package in PACKAGES for p in (CONTROLLER / package).glob("*.py")
+                   if p.name != "__init__.py" and _name(p) not in PURE_ONLY]
+                  + [CONTROLLER / m for m in MODULES])
 
 
 def _name(path: Path) -> str:
@@ -91,6 +100,11 @@ def _remove_build(root: Path = CONTROLLER) -> None:
                 [directory / MANIFEST]:
             if path.exists():
                 path.unlink()
+    for module in MODULES:  # (only the module's own: its package's others are Python)
+        stem = root / module[:-3]
+        for path in list(stem.parent.glob(stem.name + ".*.so")) + \
+                list(stem.parent.glob(stem.name + ".*.pyd")):
+            path.unlink()
 
 
 def _write_manifest(directory: Path, record: dict | None = None) -> None:

@@ -627,8 +627,10 @@ def _build_from_install(wheel: Path, tmp_path: Path,
         zf.extractall(site)
     assert (site / "controller" / "fmu" / "tracker_slave.py").is_file()
     if compiled is not None:
-        # (the group's packages: the tracking folder and its siblings, setup.py PACKAGES)
-        for package in ("tracking", "conveyor", "conveyor/frames", "kinematics"):
+        # (the group's packages: the tracking folder and its siblings, setup.py PACKAGES,
+        #  and the folders of the single compiled modules, setup.py MODULES)
+        for package in ("tracking", "conveyor", "conveyor/frames", "kinematics",
+                        "canopen/apps", "canopen/master"):
             for path in (compiled.parent / package).iterdir():
                 if path.name.endswith((".so", ".pyd")) or path.name == "_native_manifest.json":
                     shutil.copy2(path, site / "controller" / package / path.name)

@@ -1,5 +1,6 @@
 """The compiled core (docs/architecture.md "Compiled core"): ``controller.tracking``,
-``controller.conveyor`` (with ``frames``) and ``controller.kinematics``.
+``controller.conveyor`` (with ``frames``) and ``controller.kinematics``, and the demo's
+setpoint source ``controller.canopen.apps.demo``.
 
 - compiled and pure give byte-identical results: a stepped ``cantrack demo`` (bus.log,
   telemetry, summary) and the simulator's traces of examples, each run in a subprocess with
@@ -37,18 +38,21 @@ EXTENSION_SUFFIXES = (".so", ".pyd")
 COMPILED = ("tracking", "conveyor", "conveyor/frames", "kinematics")
 PURE_ONLY = {"controller.tracking.batch", "controller.tracking.metrics",
              "controller.conveyor.errors"}
-#: the modules of the compiled packages, as the source tree has them
-MODULES = sorted(
+#: the single compiled modules of other packages (setup.py MODULES)
+SINGLE = ("controller.canopen.apps.demo",)
+#: the modules of the compiled packages, as the source tree has them, and the single ones
+MODULES = sorted([
     "controller." + p.relative_to(PACKAGE).with_suffix("").as_posix().replace("/", ".")
-    for package in COMPILED for p in (PACKAGE / package).glob("*.py") if p.name != "__init__.py")
+    for package in COMPILED for p in (PACKAGE / package).glob("*.py")
+    if p.name != "__init__.py"] + list(SINGLE))
 
 #: prints NATIVE and, per module of the compiled packages, where it was loaded from
 PROBE = ("import importlib, json, sys, controller.tracking as t\n"
          f"for name in {MODULES!r}:\n"
          "    importlib.import_module(name)\n"
          "mods = {k: m.__file__ for k, m in sorted(sys.modules.items())\n"
-         "        if k.startswith(('controller.tracking.', 'controller.conveyor.',\n"
-         "                         'controller.kinematics.'))\n"
+         "        if (k.startswith(('controller.tracking.', 'controller.conveyor.',\n"
+         "                          'controller.kinematics.')) or k in " f"{SINGLE!r})\n"
          "        and not k.endswith('__mypyc') and not k.endswith('.frames')}\n"
          "print(json.dumps({'native': t.NATIVE, 'modules': mods}))\n")
 
@@ -94,7 +98,7 @@ def test_the_compiled_modules_run_by_default(native):
     probe, stderr = _probe(pure=False)
     assert probe["native"] is True
     assert sorted(probe["modules"]) == MODULES
-    assert len(MODULES) == 34  # (tracking 14, conveyor 14, frames 4, kinematics 2)
+    assert len(MODULES) == 35  # (tracking 14, conveyor 14, frames 4, kinematics 2, demo)
     assert all(f.endswith(EXTENSION_SUFFIXES) == (name not in PURE_ONLY)
                for name, f in probe["modules"].items()), probe["modules"]
     assert stderr == ""
@@ -162,7 +166,8 @@ def test_compiled_and_pure_simulator_traces_are_identical(native, tmp_path, scen
     assert len(traces[0]) > 1000
 
 
-@pytest.mark.parametrize("source", ["tracking/vec.py", "conveyor/frames/linear.py"])
+@pytest.mark.parametrize("source", ["tracking/vec.py", "conveyor/frames/linear.py",
+                                    "canopen/apps/demo.py"])
 def test_a_source_changed_after_the_build_runs_as_source(native, tmp_path, source):
     """The stale build guard: copy the compiled package, edit one source (of the tracking
     core, of a conveyor subpackage): that import runs every compiled package pure and warns

@@ -50,6 +50,9 @@ def test_the_record_names_what_the_compile_depends_on(setup_py, record):
     assert "tracking/tracker.py" in record["sources"]
     assert "conveyor/frames/linear.py" in record["sources"]
     assert not {"tracking/batch.py", "conveyor/errors.py"} & set(record["sources"])
+    # the single modules of the CANopen shell (setup.py MODULES), and nothing else of it
+    assert {name for name in record["sources"] if name.startswith("canopen/")} == {
+        "canopen/apps/demo.py", "canopen/master/masterio.py", "canopen/master/axisio.py"}
     build = record["build"]
     assert build["python"] and build["mypy"] == "2.4.1"
     assert build["flags"]["mypycify"] == {"opt_level": "3", "debug_level": "0",
@@ -59,6 +62,10 @@ def test_the_record_names_what_the_compile_depends_on(setup_py, record):
     assert {"controller/limits.py", "controller/errors.py", "controller/tracking/__init__.py",
             "controller/tracking/batch.py"} <= set(build["read"])
     assert not {f"controller/{name}" for name in record["sources"]} & set(build["read"])
+    # (mypy reads nothing of the CANopen shell for them: MYPYC_INI skips it)
+    assert not [name for name in build["read"] if name.startswith("controller/canopen/")]
+    assert "[mypy-controller.canopen,controller.canopen.*]\nfollow_imports = skip" \
+        in setup_py.MYPYC_INI
     # what the import-time stale guard reads is unchanged: compiled source -> SHA-256
     assert all(len(digest) == 64 for digest in record["sources"].values())
 
@@ -111,7 +118,7 @@ def test_a_changed_module_that_mypy_reads_is_stale(setup_py, record, build):
 
 
 @pytest.mark.parametrize("stem", ["tracking/tracker", "tracking/_core__mypyc",
-                                  "conveyor/frames/linear"])
+                                  "conveyor/frames/linear", "canopen/master/axisio"])
 def test_a_missing_extension_file_is_stale(setup_py, record, build, stem):
     (build.parent / (stem + SUFFIX)).unlink()
     assert setup_py._in_place_build_stale(build, record) == f"{stem}{SUFFIX}: missing"
@@ -125,3 +132,22 @@ def test_no_manifest_or_an_older_one_is_stale(setup_py, record, build):
     (build / setup_py.MANIFEST).unlink()
     assert setup_py._in_place_build_stale(build, record) == (
         f"no usable {setup_py.MANIFEST} (FileNotFoundError)")
+
+
+def test_removing_a_build_takes_the_single_modules_own_files_only(setup_py, tmp_path):
+    """CANTRACK_NO_EXTENSIONS=1 (or a failed compile) removes an earlier in-place build: the
+    compiled packages' extension files and manifest, and of a single compiled module's
+    package (setup.py MODULES) that module's file only."""
+    root = tmp_path / "controller"
+    files = ["tracking/_core__mypyc", "tracking/tracker", "conveyor/frames/linear",
+             "canopen/apps/demo", "canopen/master/axisio", "canopen/apps/other"]
+    for stem in files:
+        path = root / (stem + ".cpython-311-x86_64-linux-gnu.so")
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_bytes(b"")
+    setup_py._write_manifest(root / "tracking", {"sources": {}})
+    (root / "canopen" / "apps" / "demo.py").write_text("")
+    setup_py._remove_build(root)
+    left = sorted(p.relative_to(root).as_posix() for p in root.rglob("*") if p.is_file())
+    assert left == ["canopen/apps/demo.py",
+                    "canopen/apps/other.cpython-311-x86_64-linux-gnu.so"]

@@ -12,3 +12,5 @@
 
 Layer ``apps``: the top CANopen layer, imports all below (docs/architecture.md).
 """
+
+from ... import tracking as _tracking  # noqa: F401 -- first: chooses compiled or pure

@@ -68,6 +68,7 @@ from ...conveyor.sources import SourceState
 from ...limits import CartesianLimits, Limits
 from ...tracking import Imfs, Mode, MotionState, Tracker, TrackState
 from ...tracking.types import motion_state
+from ...tracking.values import attributes, mypyc_attr, restore
 from ...errors import StateError
 from ..config.demo import DemoConfig
 from ..config.plc import TriggerOverflow
@@ -118,6 +119,7 @@ class Outcome(StrEnum):
     DROPPED = "dropped"
 
 
+@mypyc_attr(allow_interpreted_subclasses=True)  # (copyable: a source's deepcopy)
 @dataclass
 class Item:
     """One item: seen by the photo-eye at controller time ``t_edge_ns``."""
@@ -140,11 +142,18 @@ class Item:
     item_type: int = 0  # its class (.demo.item_types; .tracking.items.track_types)
     model: dict = field(default_factory=dict)  # the conveyor model's ItemRecord.as_dict()
 
+    def __getstate__(self) -> dict:
+        return attributes(self)
+
+    def __setstate__(self, state: dict) -> None:
+        restore(self, state)
+
 
 #: what :meth:`PhotoEye.edges_until` returns when no edge is due (nearly every cycle)
 _NO_ITEMS: tuple[Item, ...] = ()
 
 
+@mypyc_attr(allow_interpreted_subclasses=True)  # (copyable: a source's deepcopy)
 class PhotoEye:
     """Simulated photo-eye: item edges from the true belt travel (the encoder's profile).
 
@@ -169,6 +178,12 @@ class PhotoEye:
         self._count = 0  # index of the next item (belt and PLC items share the numbering)
         self._detected = 0
         self._make_next()
+
+    def __getstate__(self) -> dict:
+        return attributes(self)
+
+    def __setstate__(self, state: dict) -> None:
+        restore(self, state)
 
     @property
     def total(self) -> int:
@@ -250,6 +265,7 @@ class PhotoEye:
         return out
 
 
+@mypyc_attr(allow_interpreted_subclasses=True)
 @dataclass
 class PickPlace:
     """The demo sequence on the conveyor model (see the module docstring)."""
@@ -291,6 +307,12 @@ class PickPlace:
     _events: list[SourceEvent] = field(default_factory=list)
     #: the robot group's IMFS after its update in this step
     _robot_imfs: Imfs = Imfs.NOT_SYNCHRONIZED
+
+    def __getstate__(self) -> dict:
+        return attributes(self)
+
+    def __setstate__(self, state: dict) -> None:
+        restore(self, state)
 
     @property
     def imfs(self) -> int:
@@ -426,7 +448,9 @@ class PickPlace:
         master_ready = master.ready
         t_now = ctx.t_ns
         f.set_master([SourceState(belt.pos, belt.vel, belt.acc)], r.k)
-        for item in self.eye.edges_until(t_now):
+        eye = self.eye
+        assert eye is not None  # (start() refuses to run without one)
+        for item in eye.edges_until(t_now):
             s_meas = master.belt_mm if master.belt_mm is not None else belt.pos
             item.s_item = s_meas - belt.vel * (t_now - item.t_edge_ns) * 1e-9
             item.trigger_cycle = cycle
@@ -460,28 +484,30 @@ class PickPlace:
                 self._until = cycle + round(self.demo.pick_dwell_s / T)
                 self.stage = Step.FOLLOW
         elif step is _FOLLOW:
-            item = self.current
-            assert item is not None  # (APPROACH and FOLLOW have their item)
+            cur = self.current
+            assert cur is not None  # (FOLLOW follows its item)
             error = ctx.tracking_error_mm
-            if error > item.max_error_mm:  # (max() written out)
-                item.max_error_mm = error
+            if error > cur.max_error_mm:  # (max() written out)
+                cur.max_error_mm = error
             if cycle >= self._until:
-                item.picked_cycle = cycle
-                item.u_pick = self.demo.photo_eye + belt.pos - item.s_item
+                cur.picked_cycle = cycle
+                s_item = cur.s_item
+                assert s_item is not None  # (set when its trigger went in)
+                cur.u_pick = self.demo.photo_eye + belt.pos - s_item
                 r.nextitem(f)
                 r.master_frame = None
                 p = self.demo.place_position
-                r.moves(Location(tuple(p), q_axis_angle((0.0, 0.0, 1.0), self.demo.place_angle)),
+                r.moves(Location(vec3(p), q_axis_angle((0.0, 0.0, 1.0), self.demo.place_angle)),
                         name="place")
                 self.stage = Step.PLACE
         elif step is _PLACE:
-            item = self.current
-            assert item is not None  # (PLACE has the item picked)
+            cur = self.current
+            assert cur is not None  # (PLACE places the item picked)
             if not r.virtual.busy and not r.links:
-                if item.placed_cycle is None:
-                    item.placed_cycle = cycle
-                if (cycle - item.placed_cycle) * T >= self.demo.place_dwell_s:
-                    self._finish_item(item, Outcome.PLACED)
+                if cur.placed_cycle is None:
+                    cur.placed_cycle = cycle
+                if (cycle - cur.placed_cycle) * T >= self.demo.place_dwell_s:
+                    self._finish_item(cur, Outcome.PLACED)
                     self.stage = Step.WAIT
         tracker = self.tracker
         if tracker is not None and tracker.state is _TRACK_OFF and master_ready:

@@ -13,3 +13,5 @@
 
 Layer ``master``: imports ``slave``, ``config``, ``protocol``, ``io`` (docs/architecture.md).
 """
+
+from ... import tracking as _tracking  # noqa: F401 -- first: chooses compiled or pure
