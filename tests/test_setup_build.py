@@ -151,3 +151,22 @@ def test_removing_a_build_takes_the_single_modules_own_files_only(setup_py, tmp_
     left = sorted(p.relative_to(root).as_posix() for p in root.rglob("*") if p.is_file())
     assert left == ["canopen/apps/demo.py",
                     "canopen/apps/other.cpython-311-x86_64-linux-gnu.so"]
+
+
+def test_no_compiled_file_is_tracked_by_git():
+    """The in-place build's files (every compiled module's extension, setup.py PACKAGES and
+    MODULES) are ignored by git, never committed: a clean checkout has no shim whose group
+    library is missing."""
+    import shutil
+    import subprocess
+
+    if shutil.which("git") is None or not (ROOT / ".git").exists():
+        pytest.skip("not a git checkout")
+    tracked = subprocess.run(["git", "ls-files", "*.so", "*.pyd", "*_native_manifest.json"],
+                             cwd=ROOT, capture_output=True, text=True, check=True).stdout
+    assert tracked == ""
+    built = [p.relative_to(ROOT).as_posix() for p in (ROOT / "controller").rglob("*.so")]
+    if built:  # (an in-place build: git ignores every one of its files)
+        ignored = subprocess.run(["git", "check-ignore", *built], cwd=ROOT,
+                                 capture_output=True, text=True).stdout.split()
+        assert sorted(ignored) == sorted(built)
