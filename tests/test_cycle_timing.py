@@ -106,7 +106,9 @@ def test_startup_check_warns_when_compute_p99_is_over_half_the_period(stepped_co
     ev = [e for e in ctl.events if e.kind == "cycle_budget"]
     assert len(ev) == 1, [str(e) for e in ctl.events]
     share = int(ev[0].detail.split(" us = ")[1].split(" %")[0])
-    assert 60 <= share < 150 and "over the first 0.1 s (> 50 %)" in ev[0].detail
+    # (at least the burn's 60 %; the check's p99 of 50 cycles is their largest, and one cycle
+    #  on a loaded machine took 181 %: the upper bound only catches a unit error, 1000 x)
+    assert 60 <= share < 1000 and "over the first 0.1 s (> 50 %)" in ev[0].detail
     assert ev[0].reaction == ""  # a warning (logged at WARNING), no reaction
     assert [r.levelname for r in caplog.records if "cycle_budget" in r.getMessage()] \
         == ["WARNING"]
