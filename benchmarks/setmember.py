@@ -147,22 +147,32 @@ KEYS = ("kept", "kalman", "mid", "clip", "half", "kal_clip", "clip_s", "tri_half
         "tri_clip_s")
 
 
+def triple_edges(t: np.ndarray, z: np.ndarray, tri: np.ndarray, ts: np.ndarray, q_mm: float,
+                 jerk: float) -> tuple[np.ndarray, np.ndarray]:
+    """(lo, hi) [mm]: the range of the position at each instant of ``ts`` [s] that every belt
+    within ``jerk`` [mm/s^3] through the counts (instants ``t`` [s], positions ``z`` [mm],
+    count ``q_mm``) must be in, by quadratic interpolation through each of the index triples
+    ``tri`` into t, z and the Peano bound of its remainder (eq. 5.3 for one belt:
+    |p - P2| <= J/6 prod |t_s - t_j|): the intersection of the triples' intervals (an outer
+    bound of the LP's range)."""
+    tt = t[tri]  # (m, 3)
+    zz = z[tri]
+    d = ts[None, :, None] - tt[:, None, :]  # (m, h, 3)
+    t0, t1, t2 = tt[:, 0, None], tt[:, 1, None], tt[:, 2, None]
+    l0 = d[:, :, 1] * d[:, :, 2] / ((t0 - t1) * (t0 - t2))
+    l1 = d[:, :, 0] * d[:, :, 2] / ((t1 - t0) * (t1 - t2))
+    l2 = d[:, :, 0] * d[:, :, 1] / ((t2 - t0) * (t2 - t1))
+    c = l0 * zz[:, 0, None] + l1 * zz[:, 1, None] + l2 * zz[:, 2, None]
+    r = ((q_mm / 2 + EPS_MM) * (np.abs(l0) + np.abs(l1) + np.abs(l2))
+         + jerk / 6 * np.abs(d[:, :, 0] * d[:, :, 1] * d[:, :, 2]))
+    return np.max(c - r, axis=0), np.min(c + r, axis=0)
+
+
 def triple_range(t: list[float], z: list[float], t_s: float, q_mm: float, jerk: float,
                  triples: np.ndarray) -> tuple[float, float]:
-    """The range of p(t_s) that every belt within ``jerk`` through the counts must be in, by
-    quadratic interpolation through each of ``triples`` (index triples into t, z) and the
-    Peano bound of its remainder (eq. 5.3 for one belt: |p - P2| <= J/6 prod |t_s - t_j|):
-    the intersection of the triples' intervals (an outer bound of the LP's range)."""
-    tt = np.asarray(t)[triples]  # (m, 3)
-    zz = np.asarray(z)[triples]
-    d = t_s - tt
-    l0 = d[:, 1] * d[:, 2] / ((tt[:, 0] - tt[:, 1]) * (tt[:, 0] - tt[:, 2]))
-    l1 = d[:, 0] * d[:, 2] / ((tt[:, 1] - tt[:, 0]) * (tt[:, 1] - tt[:, 2]))
-    l2 = d[:, 0] * d[:, 1] / ((tt[:, 2] - tt[:, 0]) * (tt[:, 2] - tt[:, 1]))
-    c = l0 * zz[:, 0] + l1 * zz[:, 1] + l2 * zz[:, 2]
-    r = ((q_mm / 2 + EPS_MM) * (np.abs(l0) + np.abs(l1) + np.abs(l2))
-         + jerk / 6 * np.abs(d[:, 0] * d[:, 1] * d[:, 2]))
-    return float(np.max(c - r)), float(np.min(c + r))
+    """:func:`triple_edges` at the one instant ``t_s`` [s]."""
+    lo, hi = triple_edges(np.asarray(t), np.asarray(z), triples, np.array([t_s]), q_mm, jerk)
+    return float(lo[0]), float(hi[0])
 
 
 def _all_triples(m: int, newest: int | None = None) -> np.ndarray:

@@ -57,6 +57,7 @@ if str(_ROOT) not in sys.path:
 
 from benchmarks import encoder as eb  # noqa: E402
 from benchmarks.encoder_seeds import _cells, _seeds  # noqa: E402
+from benchmarks.setmember import triple_edges as edges  # noqa: E402
 from controller.tracking.conditioning import (  # noqa: E402
     ConditionedMaster,
     ConditioningParams,
@@ -65,8 +66,6 @@ from controller.tracking.conditioning import (  # noqa: E402
     MasterConditioner,
 )
 
-#: the count interval widened by this [mm] (as benchmarks/setmember.py)
-EPS_MM = 1e-4
 #: instants of the horizon at most (evenly spaced, whole cycles, the first the setpoint's)
 HORIZON_POINTS = 12
 #: the geometric set of the family's lags [samples]
@@ -82,24 +81,6 @@ def family(m: int) -> np.ndarray:
     out = {(n0 - b, n0 - a, n0) for n0 in (m - 1, m - 2)
            for a, b in itertools.combinations(lags, 2) if n0 - b >= 0}
     return np.array(sorted(out))
-
-
-def edges(t: np.ndarray, z: np.ndarray, tri: np.ndarray, ts: np.ndarray, q_mm: float,
-          jerk: float) -> tuple[np.ndarray, np.ndarray]:
-    """(lo, hi) [mm]: the range of the position at each instant of ``ts`` [s] that every belt
-    within ``jerk`` [mm/s^3] through the counts (instants ``t`` [s], positions ``z`` [mm],
-    count ``q_mm``) must be in, by the triples ``tri`` (eq. 5.3 for one belt)."""
-    tt = t[tri]  # (m, 3)
-    zz = z[tri]
-    d = ts[None, :, None] - tt[:, None, :]  # (m, h, 3)
-    t0, t1, t2 = tt[:, 0, None], tt[:, 1, None], tt[:, 2, None]
-    l0 = d[:, :, 1] * d[:, :, 2] / ((t0 - t1) * (t0 - t2))
-    l1 = d[:, :, 0] * d[:, :, 2] / ((t1 - t0) * (t1 - t2))
-    l2 = d[:, :, 0] * d[:, :, 1] / ((t2 - t0) * (t2 - t1))
-    c = l0 * zz[:, 0, None] + l1 * zz[:, 1, None] + l2 * zz[:, 2, None]
-    r = ((q_mm / 2 + EPS_MM) * (np.abs(l0) + np.abs(l1) + np.abs(l2))
-         + jerk / 6 * np.abs(d[:, :, 0] * d[:, :, 1] * d[:, :, 2]))
-    return np.max(c - r, axis=0), np.min(c + r, axis=0)
 
 
 def envelope(y: tuple[float, float, float], T: float, J: float, A: float,
