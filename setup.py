@@ -39,8 +39,10 @@ HERE = Path(__file__).resolve().parent
 CONTROLLER = HERE / "controller"
 TRACKING = CONTROLLER / "tracking"
 #: the compiled packages (directories of ``controller/``): the cycle's per-sample path
-#: (tracking core, conveyor model, kinematics), one group so that their calls stay native
-PACKAGES = ("tracking", "conveyor", "conveyor/frames", "kinematics")
+#: (tracking core, conveyor model, kinematics) and the simulated devices' per-SYNC path
+#: (the slave-node engine, the drive, the encoder, the rack), one group so that their calls
+#: stay native
+PACKAGES = ("tracking", "conveyor", "conveyor/frames", "kinematics", "canopen/slave")
 #: single compiled modules of packages that otherwise stay Python (docs/architecture.md
 #: "Compiled core"): the demo's setpoint source, the encoder's and the drives' cycle I/O
 MODULES = ("canopen/apps/demo.py", "canopen/master/masterio.py", "canopen/master/axisio.py")
@@ -56,7 +58,7 @@ GROUP = "controller.tracking._core"
 MYPYC_INI = """\
 [mypy]
 no_implicit_optional = True
-[mypy-numpy,numpy.*,ruckig,ruckig.*]
+[mypy-numpy,numpy.*,ruckig,ruckig.*,can,can.*,canopen,canopen.*]
 follow_imports = skip
 ignore_missing_imports = True
 [mypy-controller.canopen,controller.canopen.*]
@@ -76,7 +78,11 @@ def _warn(message: str) -> None:
 #: not compiled (besides the packages' ``__init__.py``: tracking's chooses compiled or pure):
 #: the two numpy-array modules off the per-sample path (batch stepping, trace metrics), where
 #: mypyc gains nothing, and the conveyor's exceptions (mypyc cannot subclass builtins)
-PURE_ONLY = {"tracking/batch.py", "tracking/metrics.py", "conveyor/errors.py"}
+#: Of the simulated devices what is not on their per-SYNC path: the controller's own PLC
+#: node, the simulated bus's wiring (its logger and recorder endpoints) and the SDO server
+#: (it subclasses python canopen's classes, which the compile does not read).
+PURE_ONLY = {"tracking/batch.py", "tracking/metrics.py", "conveyor/errors.py",
+             "canopen/slave/plc.py", "canopen/slave/sdo_server.py", "canopen/slave/world.py"}
 
 
 def _sources() -> list[Path]:
@@ -129,8 +135,10 @@ def _read_modules() -> list[Path]:
     the compiled packages' pure modules and the base layer, the only other one they import
     (docs/architecture.md "Layers": ``controller/*.py``)."""
     compiled = set(_sources())
+    # (not the simulated devices' pure modules: mypy does not read controller.canopen)
     return sorted({p for package in PACKAGES for p in (CONTROLLER / package).glob("*.py")
-                   if p not in compiled} | set(CONTROLLER.glob("*.py")))
+                   if p not in compiled and not package.startswith("canopen/")}
+                  | set(CONTROLLER.glob("*.py")))
 
 
 def _sha256(path: Path) -> str:

@@ -467,20 +467,18 @@ def test_can_shell_glitch_is_an_outlier_and_a_jump_loses_the_master(tmp_path, pe
     app = ConveyorFollow(20, None, (420.0, 30.0, 0.0), end_cycle=500)
     world, ctl = stepped(cfg, app)
     enc = world.device("encoder")
-    orig = enc.true_counts  # what the encoder's 6004h reads at SYNC
     size_mm = 20.0 if permanent else 5.0
     glitch = round(size_mm * cfg.tracking.conveyor.counts_per_mm)
     hit = {"n": 0}
 
-    def sample(t_ns):
-        c = orig(t_ns)
+    def sample(t_ns, c):  # (c: what the encoder's 6004h reads at SYNC)
         if ctl.source.tracker is not None and ctl.source.tracker.state == TrackState.SYNCED:
             hit["n"] += 1
             if hit["n"] >= 100 and (permanent or hit["n"] == 100):
                 c += glitch
         return c
 
-    enc.true_counts = sample
+    enc.counts_hook = sample
     try:
         ctl.boot()
         ctl.run(max_cycles=2000)

@@ -630,7 +630,7 @@ def _build_from_install(wheel: Path, tmp_path: Path,
         # (the group's packages: the tracking folder and its siblings, setup.py PACKAGES,
         #  and the folders of the single compiled modules, setup.py MODULES)
         for package in ("tracking", "conveyor", "conveyor/frames", "kinematics",
-                        "canopen/apps", "canopen/master"):
+                        "canopen/apps", "canopen/master", "canopen/slave"):
             for path in (compiled.parent / package).iterdir():
                 if path.name.endswith((".so", ".pyd")) or path.name == "_native_manifest.json":
                     shutil.copy2(path, site / "controller" / package / path.name)

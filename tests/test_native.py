@@ -35,9 +35,10 @@ EXTENSION_SUFFIXES = (".so", ".pyd")
 
 #: the packages the build compiles (setup.py PACKAGES) and their modules that stay pure
 #: (setup.py PURE_ONLY; every package's __init__ too)
-COMPILED = ("tracking", "conveyor", "conveyor/frames", "kinematics")
+COMPILED = ("tracking", "conveyor", "conveyor/frames", "kinematics", "canopen/slave")
 PURE_ONLY = {"controller.tracking.batch", "controller.tracking.metrics",
-             "controller.conveyor.errors"}
+             "controller.conveyor.errors", "controller.canopen.slave.plc",
+             "controller.canopen.slave.sdo_server", "controller.canopen.slave.world"}
 #: the single compiled modules of other packages (setup.py MODULES)
 SINGLE = ("controller.canopen.apps.demo",)
 #: the modules of the compiled packages, as the source tree has them, and the single ones
@@ -52,7 +53,8 @@ PROBE = ("import importlib, json, sys, controller.tracking as t\n"
          "    importlib.import_module(name)\n"
          "mods = {k: m.__file__ for k, m in sorted(sys.modules.items())\n"
          "        if (k.startswith(('controller.tracking.', 'controller.conveyor.',\n"
-         "                          'controller.kinematics.')) or k in " f"{SINGLE!r})\n"
+         "                          'controller.kinematics.', 'controller.canopen.slave.'))\n"
+         "            or k in " f"{SINGLE!r})\n"
          "        and not k.endswith('__mypyc') and not k.endswith('.frames')}\n"
          "print(json.dumps({'native': t.NATIVE, 'modules': mods}))\n")
 
@@ -98,7 +100,8 @@ def test_the_compiled_modules_run_by_default(native):
     probe, stderr = _probe(pure=False)
     assert probe["native"] is True
     assert sorted(probe["modules"]) == MODULES
-    assert len(MODULES) == 35  # (tracking 14, conveyor 14, frames 4, kinematics 2, demo)
+    assert len(MODULES) == 43  # (tracking 14, conveyor 14, frames 4, kinematics 2,
+    #                             simulated devices 8, demo)
     assert all(f.endswith(EXTENSION_SUFFIXES) == (name not in PURE_ONLY)
                for name, f in probe["modules"].items()), probe["modules"]
     assert stderr == ""
@@ -128,6 +131,9 @@ def test_compiled_and_pure_value_classes_have_the_same_fields(native):
     assert fields[0] == fields[1]
     assert fields[0]["controller.conveyor.frames.linear.LinearGeometry"] == [
         "origin", "directions", "scales", "local_axis"]
+    assert fields[0]["controller.canopen.slave.engine.PdoChannel"][:8] == [
+        "kind", "number", "cob_id", "transmission", "inhibit_ns", "event_ns", "sync_start",
+        "mapping"]
 
 
 def _demo(out: Path, pure: bool) -> tuple[bytes, list[dict], list[str]]:
@@ -167,13 +173,16 @@ def test_compiled_and_pure_simulator_traces_are_identical(native, tmp_path, scen
 
 
 @pytest.mark.parametrize("source", ["tracking/vec.py", "conveyor/frames/linear.py",
-                                    "canopen/apps/demo.py"])
+                                    "canopen/apps/demo.py", "canopen/slave/drive.py"])
 def test_a_source_changed_after_the_build_runs_as_source(native, tmp_path, source):
     """The stale build guard: copy the compiled package, edit one source (of the tracking
     core, of a conveyor subpackage): that import runs every compiled package pure and warns
     once, naming the file; the unedited copy runs compiled."""
     copy = tmp_path / "site" / "controller"
     shutil.copytree(PACKAGE, copy, ignore=shutil.ignore_patterns("__pycache__"))
+    # (and the EDS files beside it, as a checkout has them: the simulated devices' pure
+    #  plc.py reads its own at import)
+    shutil.copytree(ROOT / "eds", tmp_path / "site" / "eds")
     tracking = copy / "tracking"
     assert (tracking / "_native_manifest.json").is_file()
     site = str(tmp_path / "site")

@@ -50,9 +50,12 @@ def test_the_record_names_what_the_compile_depends_on(setup_py, record):
     assert "tracking/tracker.py" in record["sources"]
     assert "conveyor/frames/linear.py" in record["sources"]
     assert not {"tracking/batch.py", "conveyor/errors.py"} & set(record["sources"])
-    # the single modules of the CANopen shell (setup.py MODULES), and nothing else of it
+    # the single modules of the CANopen shell (setup.py MODULES) and the simulated devices'
+    # per-SYNC modules, and nothing else of it
     assert {name for name in record["sources"] if name.startswith("canopen/")} == {
-        "canopen/apps/demo.py", "canopen/master/masterio.py", "canopen/master/axisio.py"}
+        "canopen/apps/demo.py", "canopen/master/masterio.py", "canopen/master/axisio.py",
+        "canopen/slave/drive.py", "canopen/slave/encoder.py", "canopen/slave/engine.py",
+        "canopen/slave/node.py", "canopen/slave/rack.py"}
     build = record["build"]
     assert build["python"] and build["mypy"] == "2.4.1"
     assert build["flags"]["mypycify"] == {"opt_level": "3", "debug_level": "0",

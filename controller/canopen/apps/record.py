@@ -180,7 +180,7 @@ def replay(cfg: ControllerConfig, stream: Sequence[int | None],
     c = cfg.tracking.conveyor
     with SimWorld(cfg, record=True) as world:
         enc = world.device(c.node)
-        enc.on_sync = StreamPlayer(enc, stream, c.index, c.sub_index)
+        enc.sync_hook = StreamPlayer(enc, stream, c.index, c.sub_index)
         ctl = Controller(cfg, world.transport,
                          source if source is not None else ConveyorFollow())
         ctl.boot()

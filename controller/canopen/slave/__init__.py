@@ -12,8 +12,15 @@ Their parameters (:class:`DriveParams`, :class:`EncoderParams`) are configuratio
 :mod:`controller.canopen.config.simulation` (the ``.simulation:`` section of bus.yml).
 
 Layer ``slave``: imports ``config``, ``protocol``, ``io`` (docs/architecture.md).
+
+The per-SYNC modules (``engine``, ``node``, ``drive``, ``encoder``, ``rack``) are compiled
+with the tracking core (docs/architecture.md "Compiled core"); ``plc`` and ``world`` stay
+Python.
 """
 
+# first: controller.tracking chooses compiled or pure for this package's modules too
+# (docs/architecture.md "Compiled core"), before one of them is loaded
+from ... import tracking as _tracking  # noqa: F401
 from ..config.simulation import DriveParams, EncoderParams
 from .drive import SimDrive
 from .encoder import SimEncoder

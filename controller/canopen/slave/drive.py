@@ -49,6 +49,7 @@ import math
 from collections import deque
 from typing import Any
 
+from ...tracking.values import mypyc_attr
 from ..config.simulation import DriveParams
 from ..protocol import cia402
 from ..protocol.cia402 import State
@@ -76,12 +77,15 @@ _PUBLISHED = ((0x6041, 0), (0x6064, 0), (0x606C, 0), (0x60F4, 0), (0x60FD, 0))
 _UNREAD = object()  #: no raw value read yet (the caches of 6040h and 607Ah)
 
 
+@mypyc_attr(allow_interpreted_subclasses=True)  # (copyable; subclassed in Python)
 class SimDrive(SimNode):
     kind = "drive"
 
     def __init__(self, name: str, eds: str, node_id: int, bus: Any,
-                 params: DriveParams | None = None, **kw: Any) -> None:
-        super().__init__(name, eds, node_id, bus, **kw)
+                 params: DriveParams | None = None, boot_delay_ns: int = 5_000_000) -> None:
+        # (the keyword written out: mypyc 2.4 passed a ``**kw`` on as the first optional
+        #  positional argument, boot_delay_ns = the dict)
+        super().__init__(name, eds, node_id, bus, boot_delay_ns=boot_delay_ns)
         clock = self.clock
         self.params = params or DriveParams()
         #: the probe input wired to the home switch (:meth:`_follow_probe` after each step)
@@ -299,7 +303,7 @@ class SimDrive(SimNode):
             if result[0] is State.READY_TO_SWITCH_ON and not self.enable_input:
                 self._cw_idle = idle
                 return  # no power stage without the enable input
-            self._enter(*result)
+            self._enter(result[0], result[1])
         else:
             self._cw_idle = idle
 

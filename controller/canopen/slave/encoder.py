@@ -12,7 +12,10 @@ when written over SDO.  The TPDOs go out on SYNC as configured (base class).
 
 Fault injection (besides the base class's): ``silence(True)`` (no frames at all),
 ``mute_pdos(True)`` (heartbeat goes on, PDOs stop: "encoder silent"), ``noise_counts``
-(seeded Gaussian noise, standard deviation in counts, added to each sample).
+(seeded Gaussian noise, standard deviation in counts, added to each sample),
+``counts_hook`` (a function of the belt's count: glitches).  ``sync_hook`` replaces the belt
+model (a recorded stream played back).  (Hooks, not methods patched on the instance: the
+class is compiled, docs/architecture.md "Compiled core".)
 """
 
 from __future__ import annotations
@@ -20,8 +23,10 @@ from __future__ import annotations
 import bisect
 import math
 import random
+from collections.abc import Callable
 from typing import Any
 
+from ...tracking.values import mypyc_attr
 from ..config.simulation import EncoderParams
 from ..protocol.sdo import ABORT_VALUE_RANGE, SdoAbortError
 from .node import SimNode
@@ -29,6 +34,7 @@ from .node import SimNode
 _UNREAD = object()  #: no raw value read yet (the cache of 6002h)
 
 
+@mypyc_attr(allow_interpreted_subclasses=True)  # (copyable: the demo's PhotoEye holds one)
 class SpeedProfile:
     """Piecewise-linear speed through points; exact travel s(t) [mm]."""
 
@@ -69,12 +75,15 @@ class SpeedProfile:
         return self.s[i - 1] + 0.5 * (self.v[i - 1] + vt) * (t - t0)
 
 
+@mypyc_attr(allow_interpreted_subclasses=True)  # (copyable; subclassed in Python)
 class SimEncoder(SimNode):
     kind = "encoder"
 
     def __init__(self, name: str, eds: str, node_id: int, bus: Any,
-                 params: EncoderParams | None = None, **kw: Any) -> None:
-        super().__init__(name, eds, node_id, bus, **kw)
+                 params: EncoderParams | None = None, boot_delay_ns: int = 5_000_000) -> None:
+        # (the keyword written out: mypyc 2.4 passed a ``**kw`` on as the first optional
+        #  positional argument, boot_delay_ns = the dict)
+        super().__init__(name, eds, node_id, bus, boot_delay_ns=boot_delay_ns)
         clock = self.clock
         self.params = params or EncoderParams()
         self.profile = SpeedProfile(self.params.profile)
@@ -85,6 +94,12 @@ class SimEncoder(SimNode):
         self._modulus_raw: object = _UNREAD
         self._modulus = 0
         self._sample_plan = self.store_plan(((0x6004, 0), (0x6030, 1)))
+        #: fault injection: ``counts_hook(t_ns, counts)`` gives the count sampled at ``t_ns``
+        #: instead of the belt's ``counts`` (:meth:`true_counts`), e.g. a glitch
+        self.counts_hook: Callable[[int, int], int] | None = None
+        #: at each SYNC instead of the belt model when set: ``sync_hook(now_ns)`` sets the
+        #: objects (a recording played back: :class:`controller.canopen.apps.record.StreamPlayer`)
+        self.sync_hook: Callable[[int], None] | None = None
         self.sample(clock.now_ns())
 
     def true_counts(self, t_ns: int) -> int:
@@ -97,6 +112,9 @@ class SimEncoder(SimNode):
         """6004h and 6030h:1 at ``t_ns`` (6004h from :meth:`true_counts`)."""
         p = self.params
         counts = self.true_counts(t_ns)
+        hook = self.counts_hook
+        if hook is not None:
+            counts = hook(t_ns, counts)
         if self.noise_counts:
             counts += round(self._rng.gauss(0.0, self.noise_counts))
         d = self.node.data_store.get(0x6002)
@@ -111,7 +129,11 @@ class SimEncoder(SimNode):
         return raw
 
     def on_sync(self, now_ns: int) -> None:
-        self.sample(now_ns)
+        hook = self.sync_hook
+        if hook is not None:
+            hook(now_ns)
+        else:
+            self.sample(now_ns)
 
     def on_write(self, index: int, sub: int, value: Any) -> None:
         if index == 0x6003:

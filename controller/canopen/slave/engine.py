@@ -12,11 +12,12 @@ What python canopen gives and what is added here, and why:
 
 - storage and the SDO protocol are python canopen's ``LocalNode`` and ``SdoServer``
   (expedited and segmented upload/download; block transfers are refused, 05040001h).  Only
-  public API is used: :class:`_OdNode` overrides ``LocalNode.get_data``/``set_data`` (the two
-  calls the server makes), so the engine's checks run on every SDO access and canopen's
-  ``NmtSlave`` (which would start a python-can periodic heartbeat thread on a 1017h write) is
-  never called; :class:`_SdoServer` overrides ``on_request``/``send_response`` to answer on
-  the engine's bus, to refuse a segmented download at its first frame (not after the last
+  public API is used: :class:`~.sdo_server.EngineNode` overrides
+  ``LocalNode.get_data``/``set_data`` (the two calls the server makes), so the engine's
+  checks run on every SDO access and canopen's ``NmtSlave`` (which would start a python-can
+  periodic heartbeat thread on a 1017h write) is never called;
+  :class:`~.sdo_server.EngineSdoServer` (both in :mod:`.sdo_server`, not compiled) overrides
+  ``on_request``/``send_response`` to answer on the engine's bus, to refuse a segmented download at its first frame (not after the last
   segment), and to answer a segment that belongs to no transfer with 05040001h (canopen
   would fail on its empty buffer);
 - checks on every SDO write (CiA 301 / CANopenNode's rules): access (06010002h), length
@@ -64,7 +65,6 @@ from enum import IntEnum
 from pathlib import Path
 from typing import Any, ClassVar, Protocol
 
-from canopen import LocalNode
 from canopen.objectdictionary import (
     NUMBER_TYPES,
     REAL32,
@@ -72,13 +72,12 @@ from canopen.objectdictionary import (
     ObjectDictionary,
     ODVariable,
 )
-from canopen.sdo import SdoServer
 
+from ...tracking.values import mypyc_attr
 from ..io.clock import Clock
 from ..protocol import od as odm
 from ..protocol.pdo import INVALID
 from ..protocol.sdo import (
-    ABORT_COMMAND,
     ABORT_GENERAL,
     ABORT_LENGTH,
     ABORT_NO_OBJECT,
@@ -91,6 +90,7 @@ from ..protocol.sdo import (
     ABORT_WRITE_ONLY,
     SdoAbortError,
 )
+from .sdo_server import EngineNode, EngineSdoServer
 
 #: CiA 301 "data cannot be transferred or stored because of local control" (the node is
 #: not under its commander's control)
@@ -198,82 +198,7 @@ class _Consumer:
     state: int | None = None  # the producer's NMT state in its last heartbeat
 
 
-class _OdNode(LocalNode):
-    """python canopen's LocalNode whose two data calls go through the engine."""
-
-    def __init__(self, engine: SlaveEngine, node_id: int, od: ObjectDictionary) -> None:
-        super().__init__(node_id, od)
-        self.engine = engine
-
-    def get_data(self, index: int, subindex: int, check_readable: bool = False) -> bytes:
-        return self.engine._sdo_read(index, subindex, check_readable)
-
-    def set_data(self, index: int, subindex: int, data: bytes,
-                 check_writable: bool = False) -> None:
-        self.engine._sdo_write(index, subindex, bytes(data), check_writable)
-
-
-class _SdoServer(SdoServer):
-    """canopen's SDO server on the engine's bus (see the module docstring)."""
-
-    def __init__(self, engine: SlaveEngine, node: _OdNode) -> None:
-        super().__init__(0x600 + engine.node_id, 0x580 + engine.node_id, node)
-        self.engine = engine
-        #: the transfer in progress: ("up" | "down", index, sub, bytes left to upload)
-        self.transfer: tuple[str, int, int, int] | None = None
-
-    def send_response(self, response: bytes | bytearray) -> None:
-        self.engine._send("sdo", self.tx_cobid, bytes(response))
-
-    def _abort_with(self, index: int, sub: int, code: int) -> None:
-        self.transfer = None
-        self.send_response(struct.pack("<BHBI", 0x80, index, sub, code))
-
-    def on_request(self, can_id: int, data: bytes, timestamp: Any) -> None:
-        if len(data) != 8:
-            # CiA 301: SDO frames have 8 bytes (canopen's server would fail in its unpack):
-            # abort 05040001h, naming what index/sub-index bytes there are
-            head = bytes(data[1:4]).ljust(3, b"\0")
-            self.transfer = None
-            self.send_response(b"\x80" + head + ABORT_COMMAND.to_bytes(4, "little"))
-            return
-        cmd = data[0]
-        ccs = cmd >> 5
-        if ccs == 4:  # the client aborts
-            self.transfer = None
-            return
-        if ccs in (1, 2, 5, 6):
-            index, sub = struct.unpack_from("<HB", data, 1)
-            self.transfer = None
-            try:
-                if ccs in (5, 6):
-                    raise SdoAbortError(ABORT_COMMAND)  # block transfer: not supported
-                if ccs == 1 and not cmd & 0x02:  # segmented download: check it now
-                    self.engine._check_write_access(index, sub)
-                    self.transfer = ("down", index, sub, 0)
-                elif ccs == 2:
-                    size = len(self.engine._sdo_read(index, sub, True))
-                    if size > 4:
-                        self.transfer = ("up", index, sub, size)
-            except SdoAbortError as exc:
-                self._abort_with(index, sub, exc.code)
-                return
-        elif ccs in (0, 3):
-            t = self.transfer
-            if t is None or t[0] != ("down" if ccs == 0 else "up"):
-                self._abort_with(t[1] if t else 0, t[2] if t else 0, ABORT_COMMAND)
-                return
-            if ccs == 3:
-                left = t[3] - 7
-                self.transfer = (t[0], t[1], t[2], left) if left > 0 else None
-            elif cmd & 0x01:  # the last segment of a download
-                self.transfer = None
-        else:
-            self._abort_with(0, 0, ABORT_COMMAND)
-            return
-        super().on_request(can_id, data, timestamp)
-
-
+@mypyc_attr(allow_interpreted_subclasses=True)  # (PlcNode and tests subclass it in Python)
 class SlaveEngine:
     """One CANopen slave node (see the module docstring)."""
 
@@ -301,8 +226,8 @@ class SlaveEngine:
         #: None: no 1019h) -- see _sync_length_ok
         self._sync_len: tuple[bytes | None, int | None] | None = None
         self._changed: set[tuple[int, int]] = set()  # objects changed since the last service
-        self.node = _OdNode(self, self.node_id, self.od)
-        self.sdo = _SdoServer(self, self.node)
+        self.node = EngineNode(self, self.node_id, self.od)
+        self.sdo = EngineSdoServer(self, self.node)
         self.node.sdo = self.sdo
         self.boot_delay_ns = int(boot_delay_ns)
         self.nmt_state = Nmt.INITIALISING

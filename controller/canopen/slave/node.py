@@ -15,6 +15,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+from ...tracking.values import mypyc_attr
 from ..protocol.sdo import (
     ABORT_DEVICE_STATE,
     ABORT_GENERAL,
@@ -36,6 +37,7 @@ __all__ = ["ABORT_DEVICE_STATE", "EMCY_SYNC_LENGTH", "ABORT_PARAM_INCOMPATIBLE",
            "NMT_PRE_OPERATIONAL", "NMT_STOPPED", "SimNode"]
 
 
+@mypyc_attr(allow_interpreted_subclasses=True)  # (copyable; subclassed in Python)
 class SimNode(SlaveEngine):
     """Base of the simulated devices (one node on the rack's port).
 
